@@ -1,0 +1,163 @@
+"""Neuron dynamics of the paper as pure step functions.
+
+Each neuron is a function ``step(input_current, state, params) -> (spikes, state)`` with its parameters
+and state as small typed tuples; the ``nn.Module`` actors only hold weights and call these functions.
+All tensors may carry any leading shape (ensemble, batch, ...).
+
+Equations (paper, Section III-A and Algorithm 1):
+
+* charging   H_t = f(V_{t-1}, X_t)                                   Eq. (1)
+* firing     S_t = Θ(H_t − V_th)                                     Eq. (2)
+* hard reset V_t = H_t (1 − S_t) + V_reset S_t                       Eq. (3)
+* soft reset V_t = H_t − V_th S_t                                    Eq. (4)
+* LIF        f(V, X) = α_V (V − V_reset) + V_reset + X               Eq. (5)
+* LI         V_t = α_V (V_{t-1} − V_reset) + V_reset + X_t           Eq. (7)
+* CLIF       C_t = α_C C_{t-1} + X_t, then LIF with X_t = C_t         (Algorithm 1)
+
+Θ is the Heaviside step (Θ(x) = 1 for x ≥ 0); its gradient is replaced by the rectangular surrogate
+Θ'(x) = 1 if |x| < w else 0 (Section III-D, w = 0.5).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+
+
+class _RectangularSpike(torch.autograd.Function):
+    """Heaviside forward, rectangular surrogate backward: ∂S/∂x = 1 where |x| < width."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, width: float) -> torch.Tensor:  # noqa: D102
+        ctx.save_for_backward(x)
+        ctx.width = width
+        return (x >= 0).to(x.dtype)
+
+    @staticmethod
+    def backward(ctx, grad_output: torch.Tensor):  # noqa: D102
+        (x,) = ctx.saved_tensors
+        return grad_output * (x.abs() < ctx.width).to(grad_output.dtype), None
+
+
+def heaviside_spike(x: torch.Tensor, surrogate_width: float) -> torch.Tensor:
+    """Θ(x) with the rectangular surrogate gradient of window ``surrogate_width`` (Eq. (2), III-D)."""
+    return _RectangularSpike.apply(x, surrogate_width)
+
+
+def straight_through(hard: torch.Tensor, soft: torch.Tensor) -> torch.Tensor:
+    """Value of ``hard``, gradient of ``soft`` (∂hard/∂soft := 1), as the population encoder uses."""
+    return soft + (hard - soft).detach()
+
+
+# --------------------------------------------------------------------------------------------- CLIF
+class CLIFParams(NamedTuple):
+    """Current-based LIF constants (paper, Section IV-A; PopSAN's values)."""
+
+    alpha_current: float = 0.5
+    alpha_voltage: float = 0.75
+    threshold: float = 0.5
+    reset: float = 0.0
+    surrogate_width: float = 0.5
+
+
+class CLIFState(NamedTuple):
+    """Synaptic current C_{t-1} and membrane voltage V_{t-1}."""
+
+    current: torch.Tensor
+    voltage: torch.Tensor
+
+
+def clif_initial_state(like: torch.Tensor, params: CLIFParams) -> CLIFState:
+    """C_0 = 0, V_0 = V_reset (paper: V_0 = V_reset, S_0 = 0)."""
+    return CLIFState(torch.zeros_like(like), torch.full_like(like, params.reset))
+
+
+def clif_step(
+    input_current: torch.Tensor, state: CLIFState, params: CLIFParams
+) -> tuple[torch.Tensor, CLIFState]:
+    """One CLIF step of Algorithm 1.
+
+    C_t = α_C C_{t-1} + X_t        (X_t = W S_t^{l-1} + b (+ I_t on the output layer))
+    H_t = α_V (V_{t-1} − V_reset) + V_reset + C_t                                     Eq. (5)
+    S_t = Θ(H_t − V_th)                                                               Eq. (2)
+    V_t = H_t (1 − S_t) + V_reset S_t                                                 Eq. (3)
+    """
+    current = params.alpha_current * state.current + input_current
+    charged = params.alpha_voltage * (state.voltage - params.reset) + params.reset + current
+    spikes = heaviside_spike(charged - params.threshold, params.surrogate_width)
+    voltage = charged * (1.0 - spikes) + params.reset * spikes
+    return spikes, CLIFState(current, voltage)
+
+
+# ------------------------------------------------------------------------ MDC-SAN dynamic neuron
+class DynamicParams(NamedTuple):
+    """MDC-SAN's dynamic neuron (Zhang et al. 2022) with the constants of the authors' comparison."""
+
+    alpha_current: float = 0.5
+    theta_v: float = -0.172
+    theta_u: float = 0.529
+    theta_r: float = 0.021
+    theta_s: float = 0.132
+    threshold: float = 0.5
+    surrogate_width: float = 0.5
+
+
+class DynamicState(NamedTuple):
+    """Current C, voltage v, recovery u and last spike s of the dynamic neuron."""
+
+    current: torch.Tensor
+    voltage: torch.Tensor
+    recovery: torch.Tensor
+    spikes: torch.Tensor
+
+
+def dynamic_initial_state(like: torch.Tensor, params: DynamicParams) -> DynamicState:
+    """All state variables start at zero."""
+    zeros = torch.zeros_like(like)
+    return DynamicState(zeros, zeros, zeros, zeros)
+
+
+def dynamic_step(
+    input_current: torch.Tensor, state: DynamicState, params: DynamicParams
+) -> tuple[torch.Tensor, DynamicState]:
+    """One step of MDC-SAN's two-variable dynamic neuron (SPEC, "Baselines").
+
+    C_t = α_C C_{t-1} + X_t;   v̂ = v_{t-1}(1 − s_{t-1}) + θ_r s_{t-1};   û = u_{t-1} + θ_s s_{t-1}
+    v_t = v̂ + (v̂² − v̂ − û + C_t);   u_t = û + (θ_v v̂ − θ_u û);   s_t = Θ(v_t − V_th)
+    """
+    current = params.alpha_current * state.current + input_current
+    reset_voltage = state.voltage * (1.0 - state.spikes) + params.theta_r * state.spikes
+    reset_recovery = state.recovery + params.theta_s * state.spikes
+    voltage = reset_voltage + (reset_voltage * reset_voltage - reset_voltage - reset_recovery + current)
+    recovery = reset_recovery + (params.theta_v * reset_voltage - params.theta_u * reset_recovery)
+    spikes = heaviside_spike(voltage - params.threshold, params.surrogate_width)
+    return spikes, DynamicState(current, voltage, recovery, spikes)
+
+
+# ------------------------------------------------------------------------------------------- LI
+def li_step(input_current: torch.Tensor, voltage: torch.Tensor, alpha_voltage: float,
+            reset: float = 0.0) -> torch.Tensor:
+    """Non-spiking leaky integrator, Eq. (7): V_t = α_V (V_{t-1} − V_reset) + V_reset + X_t."""
+    return alpha_voltage * (voltage - reset) + reset + input_current
+
+
+# ------------------------------------------------------------------------ soft-reset IF encoder
+class EncoderParams(NamedTuple):
+    """Deterministic soft-reset IF neurons of the population encoder (PopSAN's threshold 0.999)."""
+
+    threshold: float = 0.999
+
+
+def soft_reset_if_step(
+    stimulation: torch.Tensor, voltage: torch.Tensor, params: EncoderParams
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One step of E_pop_det's IF neuron: v ← v + A; S = [v > V_th]; v ← v − V_th·S (Eq. (4)).
+
+    The spike is straight-through with respect to the stimulation strength A: ∂S_t/∂A = 1
+    (Section III-D, "Population Encoder").
+    """
+    charged = voltage + stimulation
+    hard = (charged > params.threshold).to(stimulation.dtype)
+    spikes = straight_through(hard, stimulation)
+    return spikes, charged - params.threshold * hard

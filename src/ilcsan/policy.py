@@ -1,0 +1,144 @@
+"""A trained actor as a deployable policy: ``ilcsan.load(path).predict(obs)``.
+
+``load`` accepts a run directory (its ``policy.pt``, the actor of the best evaluation), a ``policy.pt``
+file, or a ``checkpoint.pt`` (the actor of the last evaluation). ``predict`` maps a numpy observation,
+one (N,) or a batch (B, N), to the deterministic action with the frozen normaliser, the same call a
+robot program makes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .actors import build_actor
+from .config import ActorConfig
+from .errors import UserError
+from .io import safe_torch_load
+from .training import CHECKPOINT_FORMAT, POLICY_FORMAT
+
+
+def resolve_policy_file(path: str | Path) -> Path:
+    """A run directory → its policy.pt; a file → itself. Clear errors for everything else."""
+    path = Path(path)
+    if path.is_dir():
+        if (path / "policy.pt").is_file():
+            return path / "policy.pt"
+        seeds = sorted(p.name for p in path.glob("seed*") if (p / "policy.pt").is_file())
+        if seeds:
+            raise UserError(f"{path} holds several seeds ({', '.join(seeds)}); pass one of them, e.g. {path / seeds[0]}")
+        if (path / "checkpoint.pt").is_file():
+            return path / "checkpoint.pt"
+        raise UserError(f"{path} has no policy.pt yet: the run has not finished its first evaluation")
+    if not path.exists():
+        raise UserError(f"{path} does not exist; pass a run directory, a policy.pt or a checkpoint.pt")
+    return path
+
+
+@dataclass
+class Policy:
+    """A trained actor with its frozen observation normaliser; ``predict`` is the deployed call."""
+
+    actor: torch.nn.Module
+    actor_config: ActorConfig
+    task: str
+    obs_mean: np.ndarray
+    obs_std: np.ndarray
+    obs_clip: float
+    action_scale: np.ndarray
+    action_offset: np.ndarray
+    info: dict[str, Any]
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.obs_mean.shape[0])
+
+    @property
+    def action_dim(self) -> int:
+        return int(self.action_scale.shape[0])
+
+    def normalize(self, observation: np.ndarray) -> np.ndarray:
+        return np.clip((observation - self.obs_mean) / self.obs_std, -self.obs_clip, self.obs_clip).astype(np.float32)
+
+    def check_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """Validate shape and values; returns a (B, N) float64 array and whether the input was single."""
+        try:
+            array = np.asarray(observation, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise UserError(f"observation must be numbers of shape ({self.state_dim},) or (B, {self.state_dim})") \
+                from None
+        single = array.ndim == 1
+        if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
+            raise UserError(f"observation has shape {array.shape}; this {self.task} policy expects "
+                            f"({self.state_dim},) or (B, {self.state_dim})")
+        if not np.all(np.isfinite(array)):
+            raise UserError("observation contains NaN or inf; check the sensor readings before acting")
+        return (array[None] if single else array), single
+
+    @torch.no_grad()
+    def predict(self, observation: Any) -> np.ndarray:
+        """Deterministic action(s) for one observation (N,) → (M,) or a batch (B, N) → (B, M)."""
+        batch, single = self.check_observation(observation)
+        state = torch.as_tensor(self.normalize(batch)).unsqueeze(0)
+        action = self.actor(state)[0].numpy()
+        return action[0] if single else action
+
+    @torch.no_grad()
+    def run(self, observation: Any, engine: str | None = None):
+        """The full forward pass (spikes of every layer, LI voltages) for analysis."""
+        batch, _ = self.check_observation(observation)
+        return self.actor.run(torch.as_tensor(self.normalize(batch)).unsqueeze(0), engine)
+
+
+def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor], path: Path) -> Policy:
+    config = ActorConfig.from_dict(data["actor_config"])
+    scale = np.asarray(data["action_scale"], dtype=np.float64)
+    offset = np.asarray(data["action_offset"], dtype=np.float64)
+    actor = build_actor(config, int(data["state_dim"]), int(data["action_dim"]), scale, offset, seeds=(0,))
+    with torch.no_grad():
+        for name, param in actor.named_parameters():
+            if name not in actor_params:
+                raise UserError(f"{path} has no weights for {name!r}: it is incomplete or from another version")
+            value = actor_params[name]
+            if tuple(value.shape) != tuple(param.shape):
+                raise UserError(f"{path}: weights {name!r} have shape {tuple(value.shape)}, the actor needs "
+                                f"{tuple(param.shape)}; the file is corrupt or mismatched")
+            param.copy_(value)
+    actor.eval()
+    return Policy(actor, config, data["task"], np.asarray(data["obs_mean"], np.float64),
+                  np.asarray(data["obs_std"], np.float64), float(data["obs_clip"]), scale, offset,
+                  {key: data.get(key) for key in ("step", "seed", "eval_return_mean")})
+
+
+def load(path: str | Path) -> Policy:
+    """Load a trained actor from a run directory, a policy.pt or a checkpoint.pt."""
+    file = resolve_policy_file(path)
+    data = safe_torch_load(file, "policy")
+    try:
+        if data["format"] == POLICY_FORMAT:
+            return _params_to_policy(data, data["actor"], file)
+        if data["format"] == CHECKPOINT_FORMAT:
+            normalizer = data["normalizer"]
+            count = float(normalizer["count"])
+            variance = np.asarray(normalizer["m2"]) / max(count, 1.0) if count > 0 else np.ones_like(
+                np.asarray(normalizer["m2"]))
+            from .normalizer import EPSILON
+            from .tasks import action_bounds, make_env
+
+            config = data["config"]
+            env = make_env(config["task"])
+            scale, offset = action_bounds(env)
+            env.close()
+            policy_data = {"actor_config": config["actor"], "state_dim": data["state_dim"],
+                           "action_dim": data["action_dim"], "action_scale": scale, "action_offset": offset,
+                           "obs_mean": np.asarray(normalizer["mean"]), "obs_std": np.sqrt(variance + EPSILON),
+                           "obs_clip": normalizer["clip"], "task": config["task"], "step": data["step"],
+                           "seed": config.get("seed")}
+            return _params_to_policy(policy_data, data["actor"], file)
+    except (KeyError, TypeError, AttributeError) as error:
+        raise UserError(f"{file} is missing {error}; it is corrupt or from another version of ilcsan") from None
+    raise UserError(f"{file} has format {data['format']!r}; expected an ilcsan policy or checkpoint")

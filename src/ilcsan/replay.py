@@ -1,0 +1,95 @@
+"""Replay buffer for K seeds, with append-only segments for cheap, atomic checkpoints.
+
+Transitions are stored per seed in arrays of shape (K, capacity, ·). Each seed samples its minibatch
+with its own generator. For checkpointing, only the rows added since the last checkpoint are written
+(one small ``.npz`` segment per checkpoint and seed) instead of the whole buffer every time; a resumed
+run replays the segments in order, so a buffer that wrapped around is rebuilt exactly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UserError
+from .io import atomic_savez
+
+FIELDS = ("obs", "action", "reward", "next_obs", "terminal")
+
+
+class ReplayBuffer:
+    """FIFO of (s, a, r, s', terminal) for K seeds; ``total`` counts every insert ever made."""
+
+    def __init__(self, ensemble: int, state_dim: int, action_dim: int, capacity: int):
+        self.capacity = int(capacity)
+        self.total = 0
+        self.data = {
+            "obs": np.zeros((ensemble, capacity, state_dim), np.float32),
+            "action": np.zeros((ensemble, capacity, action_dim), np.float32),
+            "reward": np.zeros((ensemble, capacity), np.float32),
+            "next_obs": np.zeros((ensemble, capacity, state_dim), np.float32),
+            "terminal": np.zeros((ensemble, capacity), np.float32),
+        }
+
+    @property
+    def size(self) -> int:
+        return min(self.total, self.capacity)
+
+    def add(self, obs, action, reward, next_obs, terminal) -> None:
+        """One transition per seed: obs (K, N), action (K, M), reward (K,), next_obs (K, N), terminal (K,)."""
+        row = self.total % self.capacity
+        for name, value in zip(FIELDS, (obs, action, reward, next_obs, terminal), strict=True):
+            self.data[name][:, row] = value
+        self.total += 1
+
+    def sample(self, generators: list[np.random.Generator], batch_size: int) -> dict[str, np.ndarray]:
+        """A minibatch per seed, indices drawn from that seed's generator → arrays (K, B, ·)."""
+        indices = np.stack([generator.integers(0, self.size, batch_size) for generator in generators])
+        seeds = np.arange(len(generators))[:, None]
+        return {name: array[seeds, indices] for name, array in self.data.items()}
+
+    # ---------------------------------------------------------------------------- checkpoints
+    def write_segment(self, directory: Path, seed_index: int, start: int) -> str | None:
+        """Write rows inserted at [start, total) of one seed as ``replay/<start>-<end>.npz``."""
+        end = self.total
+        if end <= start:
+            return None
+        start = max(start, end - self.capacity)
+        rows = np.arange(start, end) % self.capacity
+        name = f"{start:010d}-{end:010d}.npz"
+        folder = Path(directory) / "replay"
+        folder.mkdir(parents=True, exist_ok=True)
+        atomic_savez(folder / name, **{f: self.data[f][seed_index, rows] for f in FIELDS})
+        return name
+
+    def load_segments(self, directory: Path, seed_index: int, names: list[str], total: int) -> None:
+        """Rebuild one seed's rows from its segments (in order) up to insert count ``total``."""
+        folder = Path(directory) / "replay"
+        for name in names:
+            start, end = (int(part) for part in name.removesuffix(".npz").split("-"))
+            try:
+                with np.load(folder / name, allow_pickle=False) as segment:
+                    arrays = {f: segment[f] for f in FIELDS}
+            except (OSError, KeyError, ValueError) as error:
+                raise UserError(f"replay segment {folder / name} is missing or corrupt ({error}); "
+                                "the run cannot resume exactly — start it again without --resume") from None
+            if len(arrays["obs"]) != end - start:
+                raise UserError(f"replay segment {folder / name} has the wrong length; it is corrupt")
+            rows = np.arange(start, end) % self.capacity
+            for field in FIELDS:
+                self.data[field][seed_index, rows] = arrays[field]
+        self.total = total
+
+    @staticmethod
+    def prune_segments(directory: Path, keep: list[str]) -> None:
+        """Delete segment files no checkpoint refers to (written by an interrupted checkpoint)."""
+        folder = Path(directory) / "replay"
+        if not folder.is_dir():
+            return
+        for path in folder.iterdir():
+            if path.name not in keep and path.suffix == ".npz":
+                with contextlib.suppress(FileNotFoundError):
+                    os.remove(path)

@@ -1,0 +1,132 @@
+"""TD3 (Fujimoto et al. 2018) with a deep twin critic, as the paper trains every actor (Section III-E).
+
+The agent holds K independent agents in stacked weights: the actor ensemble, a critic ensemble of 2K
+MLPs (the twin critics of seed k are slices 2k and 2k+1, evaluated in one batched matmul) and their
+targets. Losses are summed over seeds, so each seed's gradient is exactly its own; Adam is elementwise,
+so one optimizer over stacked weights equals K separate optimizers.
+
+One update (``update``), in TD3's order:
+  ã = clip(π'(s') + clip(ε, −c, c), low, high),  ε ~ N(0, σ̃²)             target policy smoothing
+  y = r + γ (1 − terminal) min_j Q'_j(s', ã)                                clipped double-Q
+  critic ← ∇ Σ_j (Q_j(s, a) − y)²
+  every d updates: actor ← ∇ −Q_1(s, π(s)); targets ← τ θ + (1 − τ) θ'      delayed policy updates
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from .actors import build_actor
+from .config import ActorConfig, TD3Config
+from .layers import EnsembleMLP, seed_generators
+
+CRITIC_SALT = 2
+NOISE_SALT = 3
+
+
+class TwinCritic(nn.Module):
+    """2K critics (N+M, 256, ReLU, 256, ReLU, 1): Q_1 and Q_2 of seed k at slices 2k and 2k+1."""
+
+    def __init__(self, state_dim: int, action_dim: int, hidden: Sequence[int], seeds: Sequence[int]):
+        super().__init__()
+        self.ensemble = len(seeds)
+        self.mlp = EnsembleMLP(2 * self.ensemble, [state_dim + action_dim, *hidden, 1])
+        generators = seed_generators(seeds, CRITIC_SALT)
+        self.mlp.reset_parameters([g for g in generators for _ in range(2)])
+
+    def forward(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """(K, B, N), (K, B, M) → Q values (K, 2, B)."""
+        inputs = torch.cat([state, action], dim=-1)
+        k, b, d = inputs.shape
+        twin = inputs.unsqueeze(1).expand(k, 2, b, d).reshape(2 * k, b, d)
+        return self.mlp(twin).reshape(k, 2, b)
+
+
+def polyak_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """θ' ← τ θ + (1 − τ) θ' for every parameter, in one fused call."""
+    with torch.no_grad():
+        target_params = list(target.parameters())
+        torch._foreach_lerp_(target_params, list(source.parameters()), tau)
+
+
+class TD3Agent:
+    """K TD3 agents in stacked weights on one device."""
+
+    def __init__(self, actor_config: ActorConfig, td3: TD3Config, state_dim: int, action_dim: int,
+                 action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
+                 device: str | torch.device = "cpu"):
+        self.config, self.td3, self.seeds = actor_config, td3, list(seeds)
+        self.device = torch.device(device)
+        self.actor = build_actor(actor_config, state_dim, action_dim, action_scale, action_offset,
+                                 self.seeds).to(self.device)
+        self.actor_target = copy.deepcopy(self.actor)
+        self.critic = TwinCritic(state_dim, action_dim, td3.critic_hidden, self.seeds).to(self.device)
+        self.critic_target = copy.deepcopy(self.critic)
+        for module in (self.actor_target, self.critic_target):
+            module.requires_grad_(False)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr)
+        self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
+                                 for seed in self.seeds]
+        self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)
+        self.offset = torch.as_tensor(np.asarray(action_offset), dtype=torch.float32, device=self.device)
+        self.updates = 0
+
+    # ------------------------------------------------------------------------------- acting
+    @torch.no_grad()
+    def act(self, normalized_state: np.ndarray) -> np.ndarray:
+        """Deterministic actions for one normalised state per seed: (K, N) → (K, M)."""
+        state = torch.as_tensor(normalized_state, device=self.device).unsqueeze(1)
+        return self.actor(state).squeeze(1).cpu().numpy()
+
+    # ------------------------------------------------------------------------------ learning
+    def _target_noise(self, shape: tuple[int, ...]) -> torch.Tensor:
+        noise = torch.stack([torch.randn(shape[1:], generator=g, device=self.device)
+                             for g in self.noise_generators])
+        clip = self.td3.noise_clip
+        return (noise * self.td3.target_noise).clamp(-clip, clip) * self.scale
+
+    def critic_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Σ_k Σ_j mean_b (Q_j(s, a) − y)², with y from the target actor and the min of the target twins."""
+        with torch.no_grad():
+            next_action = self.actor_target(batch["next_obs"])
+            next_action = next_action + self._target_noise(tuple(next_action.shape))
+            next_action = torch.maximum(torch.minimum(next_action, self.offset + self.scale),
+                                        self.offset - self.scale)
+            target_q = self.critic_target(batch["next_obs"], next_action).min(dim=1).values
+            target = batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * target_q
+        q_values = self.critic(batch["obs"], batch["action"])
+        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
+
+    def actor_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Σ_k −mean_b Q_1(s, π(s))."""
+        q_values = self.critic(batch["obs"], self.actor(batch["obs"]))
+        return -q_values[:, 0].mean(dim=-1).sum()
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:
+        """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps)."""
+        critic_loss = self.critic_loss(batch)
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_optimizer.step()
+        self.updates += 1
+        actor_loss = None
+        if self.updates % self.td3.policy_delay == 0:
+            self.critic.requires_grad_(False)
+            loss = self.actor_loss(batch)
+            self.actor_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.actor_optimizer.step()
+            self.critic.requires_grad_(True)
+            polyak_update(self.actor_target, self.actor, self.td3.tau)
+            polyak_update(self.critic_target, self.critic, self.td3.tau)
+            actor_loss = loss.detach()
+        return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss}
+
+    def to_batch(self, arrays: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+        return {name: torch.as_tensor(value, device=self.device) for name, value in arrays.items()}
