@@ -42,8 +42,9 @@ def gaussian_stimulation(state: torch.Tensor, mu: torch.Tensor, sigma: torch.Ten
 
 
 def deterministic_spike_train(stimulation: torch.Tensor, timesteps: int,
-                              params: EncoderParams = EncoderParams()) -> torch.Tensor:
+                              params: EncoderParams | None = None) -> torch.Tensor:
     """E_pop_det's second stage: soft-reset IF neurons driven by A for T steps → (K, T, B, D)."""
+    params = EncoderParams() if params is None else params
     voltage = torch.zeros_like(stimulation).detach()
     spikes = []
     for _ in range(timesteps):
