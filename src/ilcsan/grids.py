@@ -107,7 +107,7 @@ def _row(slug: str, label: str, preset: str | None, runnable: bool = True, **ove
 
 PERF = TableSpec(
     name="perf",
-    caption="Max average rewards over 10 random seeds for DAN, ILC-SAN and other SANs (Table perf)",
+    caption="Max average rewards over 10 random seeds for DAN, ILC-SAN and other SANs",
     tasks=PAPER_TASKS,
     rows=(
         _row("dan", "DAN", "dan"),
@@ -133,7 +133,7 @@ def _decoder_rows(decoders: tuple[str, ...], intra: str) -> tuple[RowSpec, ...]:
 DECODE = TableSpec(
     name="decode",
     caption="Max average rewards over 10 random seeds for various decoding methods without "
-    "intra-layer connections (Table decode)",
+    "intra-layer connections",
     tasks=FIRST_FOUR,
     rows=(_row("fr", "D_fr", "popsan"), *_decoder_rows(("last", "max", "mean"), intra="none")),
 )
@@ -141,7 +141,7 @@ DECODE = TableSpec(
 DEC_INTRA = TableSpec(
     name="dec_intra",
     caption="Max average rewards over 10 random seeds for different decoding methods with "
-    "intra-layer connections (Table dec_intra)",
+    "intra-layer connections",
     tasks=FIRST_FOUR,
     rows=(_row("fr", "D_fr", "ilc-san", decoder="fr"), *_decoder_rows(("last",), intra="intra")),
 )
@@ -154,16 +154,14 @@ _INTRA_LABELS = {
 
 INTRA = TableSpec(
     name="intra",
-    caption="Max average rewards over 10 random seeds for ablation study on intra-layer connections "
-    "(Table intra)",
+    caption="Max average rewards over 10 random seeds for ablation study on intra-layer connections",
     tasks=FIRST_FOUR,
     rows=tuple(_row(variant, label, "ilc-san", intra=variant) for variant, label in _INTRA_LABELS.items()),
 )
 
 LAYER = TableSpec(
     name="layer",
-    caption="Max average rewards over 10 random seeds for comparative experiments on the backbone SNN "
-    "(Table layer)",
+    caption="Max average rewards over 10 random seeds for comparative experiments on the backbone SNN",
     tasks=FIRST_FOUR,
     rows=tuple(_row(f"hidden-{n}", f"N_hidden={n}", "ilc-san", hidden_layers=n) for n in range(1, 5)),
 )

@@ -30,7 +30,8 @@ def resolve_policy_file(path: str | Path) -> Path:
             return path / "policy.pt"
         seeds = sorted(p.name for p in path.glob("seed*") if (p / "policy.pt").is_file())
         if seeds:
-            raise UserError(f"{path} holds several seeds ({', '.join(seeds)}); pass one of them, e.g. {path / seeds[0]}")
+            raise UserError(f"{path} holds several seeds ({', '.join(seeds)}); pass one of them, "
+                            f"e.g. {path / seeds[0]}")
         if (path / "checkpoint.pt").is_file():
             return path / "checkpoint.pt"
         raise UserError(f"{path} has no policy.pt yet: the run has not finished its first evaluation")

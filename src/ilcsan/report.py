@@ -551,11 +551,12 @@ def _paper(cell: Cell) -> str:
     return format_stat(cell.paper.mean, cell.paper.std) if cell.paper else ""
 
 
-def _apr_text(row: RowResult, n_tasks: int) -> str:
+def _apr_parts(row: RowResult, n_tasks: int) -> tuple[str, str]:
+    """(``98.61%``, `` (3/4 tasks)`` when the APR averages fewer tasks than the table has)."""
     if row.apr is None:
-        return ""
+        return "", ""
     partial = f" ({row.apr_tasks}/{n_tasks} tasks)" if row.apr_tasks < n_tasks else ""
-    return f"{row.apr:.2f}%{partial}"
+    return f"{row.apr:.2f}%", partial
 
 
 def _md_escape(text: str) -> str:
@@ -571,8 +572,8 @@ def _md_cell(cell: Cell) -> str:
 
 
 def _md_apr(row: RowResult, n_tasks: int) -> str:
-    ours = _apr_text(row, n_tasks)
-    text = "—" if not ours else (f"**{ours}**" if row.best_apr else ours)
+    ours, partial = _apr_parts(row, n_tasks)
+    text = "—" if not ours else (f"**{ours}**" if row.best_apr else ours) + partial
     return text + (f" · paper {row.paper_apr:.2f}%" if row.paper_apr is not None else "")
 
 
@@ -600,7 +601,7 @@ def render_markdown(results: TableResult | Sequence[TableResult], skipped: Seque
 
 
 def _md_table(result: TableResult) -> list[str]:
-    heading = f"## {result.caption}" + (f" (`{result.name}`)" if result.name else "")
+    heading = f"## Table `{result.name}`: {result.caption}" if result.name else f"## {result.caption}"
     header = ["Row", *result.tasks, "APR"]
     lines = [heading, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in result.rows:
@@ -611,10 +612,20 @@ def _md_table(result: TableResult) -> list[str]:
     missing = result.missing
     if missing:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
-        listed = "; ".join(f"{_md_escape(label)} / {task}" for label, task in missing)
-        lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {listed}.")
+        lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
     lines.append("")
     return lines
+
+
+def _missing_text(result: TableResult) -> str:
+    """Missing cells grouped by row: ``PopSAN: all tasks; I_self: Walker2d``."""
+    parts = []
+    for row in result.rows:
+        tasks = [cell.task for cell in row.cells if not cell.n]
+        if row.runnable and tasks:
+            listed = "all tasks" if len(tasks) == len(row.cells) else ", ".join(tasks)
+            parts.append(f"{_md_escape(row.label)}: {listed}")
+    return "; ".join(parts)
 
 
 _LATEX_SPECIAL = {
@@ -640,9 +651,9 @@ def _tex_cell(cell: Cell) -> str:
 
 
 def _tex_apr(row: RowResult, n_tasks: int) -> str:
-    ours = _apr_text(row, n_tasks)
+    ours, partial = _apr_parts(row, n_tasks)
     value = "--" if not ours else latex_escape(ours)
-    value = rf"\textbf{{{value}}}" if row.best_apr else value
+    value = (rf"\textbf{{{value}}}" if row.best_apr else value) + partial
     if row.paper_apr is not None:
         value += rf" {{\scriptsize (paper {row.paper_apr:.2f}\%)}}"
     return value

@@ -1,0 +1,102 @@
+"""Export a trained actor: the ``.npz`` deploy bundle, or a NIR graph (:mod:`ilcsan.nir_export`).
+
+Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.deploy` with numpy only:
+
+=====================  ============  =========================================================
+name                   shape         meaning
+=====================  ============  =========================================================
+encoder.mu             (N, P_in)     Gaussian receptive-field centres (population encoders)
+encoder.sigma          (N, P_in)     Gaussian receptive-field widths
+layers.<l>.weight      (out, in)     synaptic layer l = 0..L-1 (backbone incl. output layer)
+layers.<l>.bias        (out,)
+intra.weight           (M, P, P)     intra-layer weights, ablation mask applied (absent: none)
+intra.bias             (M, P)        intra-layer bias, mask applied (absent: none)
+decoder.weight         (M, P_out)    group FC of the population decoder
+decoder.bias           (M,)
+meta                   str (JSON)    T, alpha_c, alpha_v, v_th, v_reset, alpha_v_li, v_reset_li,
+                                     statistic, encoder, enc_v_th, obs_mean, obs_std, obs_clip,
+                                     action_scale, action_offset, output ("tanh"), neuron,
+                                     network, preset, task, population_out
+=====================  ============  =========================================================
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import UserError
+from .io import atomic_savez
+from .policy import Policy, load
+
+FORMATS = ("npz", "nir")
+WEIGHTS = ("float32", "int8")
+
+
+def bundle_meta(policy: Policy) -> dict[str, Any]:
+    """The bundle's metadata: every constant the runtime needs, JSON-serialisable."""
+    c = policy.actor_config
+    return {
+        "T": c.timesteps, "alpha_c": c.alpha_c, "alpha_v": c.alpha_v, "v_th": c.v_th, "v_reset": 0.0,
+        "alpha_v_li": c.alpha_v_li, "v_reset_li": 0.0, "statistic": c.decoder, "encoder": c.encoder,
+        "enc_v_th": c.enc_v_th, "obs_mean": policy.obs_mean.tolist(), "obs_std": policy.obs_std.tolist(),
+        "obs_clip": policy.obs_clip, "action_scale": policy.action_scale.tolist(),
+        "action_offset": policy.action_offset.tolist(), "output": "tanh", "neuron": c.neuron,
+        "network": c.network, "preset": c.preset, "task": policy.task, "population_out": c.population_out,
+        "population_in": c.population_in,
+    }
+
+
+def bundle_arrays(policy: Policy) -> dict[str, np.ndarray]:
+    """The actor's weights under the bundle's names, float32, seed slice 0, masks applied."""
+    actor = policy.actor
+
+    def array(tensor) -> np.ndarray:
+        return tensor.detach()[0].cpu().numpy().astype(np.float32)
+
+    arrays: dict[str, np.ndarray] = {}
+    if policy.actor_config.network == "deep":
+        for index, layer in enumerate(actor.mlp.layers):
+            arrays[f"layers.{index}.weight"], arrays[f"layers.{index}.bias"] = array(layer.weight), array(layer.bias)
+        return arrays
+    if actor.encoder.mu is not None:
+        arrays["encoder.mu"], arrays["encoder.sigma"] = array(actor.encoder.mu), array(actor.encoder.sigma)
+    for index, layer in enumerate(actor.layers):
+        arrays[f"layers.{index}.weight"], arrays[f"layers.{index}.bias"] = array(layer.weight), array(layer.bias)
+    if actor.intra is not None:
+        arrays["intra.weight"] = array(actor.intra.masked_weight())
+        arrays["intra.bias"] = array(actor.intra.masked_bias())
+    arrays["decoder.weight"], arrays["decoder.bias"] = array(actor.decoder.weight), array(actor.decoder.bias)
+    return arrays
+
+
+def export_npz(policy: Policy, path: Path, weights: str = "float32") -> Path:
+    arrays = bundle_arrays(policy)
+    meta = bundle_meta(policy)
+    if weights == "int8":
+        from .quantize import quantize_bundle
+
+        arrays, meta = quantize_bundle(arrays, meta)
+    atomic_savez(path, meta=np.array(json.dumps(meta)), **arrays)
+    return path
+
+
+def export(run: str | Path, format: str = "npz", out: Path | None = None, weights: str = "float32") -> Path:
+    """Export the policy of ``run`` in ``format`` to ``out`` (default ``<run>/actor.<format>``)."""
+    if format not in FORMATS:
+        raise UserError(f"--format {format!r} is not one of: {', '.join(FORMATS)}")
+    if weights not in WEIGHTS:
+        raise UserError(f"--weights {weights!r} is not one of: {', '.join(WEIGHTS)}")
+    policy = load(run)
+    run_path = Path(run)
+    folder = run_path if run_path.is_dir() else run_path.parent
+    suffix = "" if weights == "float32" else f".{weights}"
+    out = Path(out) if out is not None else folder / f"actor{suffix}.{format}"
+    if format == "nir":
+        from .nir_export import export_nir
+
+        return export_nir(policy, out)
+    return export_npz(policy, out, weights)

@@ -1,0 +1,348 @@
+"""The report built from synthetic run directories written by hand (ilcsan.report)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcsan.report import (
+    build_table,
+    collect_runs,
+    curve,
+    format_stat,
+    plot_curves,
+    render_csv,
+    render_latex,
+    render_markdown,
+    report_tables,
+    scan_runs,
+    smooth,
+    write_report,
+)
+
+HEADER = "step,eval_return_mean,eval_return_std,eval_length_mean,wall_seconds,steps_per_second"
+
+
+def make_run(root: Path, task: str, seed: int, label: str, returns: list[float], *,
+             table: str | None = None, row: str | None = None, preset: str = "ilc-san",
+             result: bool = True, finished: bool = True, every: int = 10_000, subdir: str | None = None) -> Path:
+    """Write config.json, metrics.csv and (optionally) result.json the way the trainer does."""
+    name = subdir or f"{table or 'free'}/{task}/{row or label}/seed{seed}"
+    run = root / name
+    run.mkdir(parents=True)
+    config = {"task": task, "seed": seed, "label": label, "actor": {"preset": preset}}
+    if table:
+        config |= {"table": table, "row": row}
+    (run / "config.json").write_text(json.dumps(config))
+    lines = [HEADER] + [f"{(i + 1) * every},{value},1.0,1000,{i + 1.0},100.0" for i, value in enumerate(returns)]
+    (run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    if result:
+        best = int(np.argmax(returns))
+        (run / "result.json").write_text(json.dumps({
+            "best_return": returns[best], "best_step": (best + 1) * every, "steps_done": len(returns) * every,
+            "steps_total": 1_000_000, "finished": finished}))
+    return run
+
+
+def intra_run(root: Path, task: str, row: str, seed: int, returns: list[float], **kwargs) -> Path:
+    labels = {"intra": "I_intra", "none": "No I_intra", "self": "I_self"}
+    return make_run(root, task, seed, labels[row], returns, table="intra", row=row, **kwargs)
+
+
+# ------------------------------------------------------------------------------------------------
+# Cells: max average reward, mean ± std over seeds
+
+
+def test_cell_is_mean_and_population_std_of_each_seeds_best_evaluation(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3200])
+    intra_run(tmp_path, "Hopper", "intra", 1, [3600, 2000, 3000])
+    intra_run(tmp_path, "Hopper", "intra", 2, [10, 20, 3650], result=False)  # still running: metrics.csv
+    cell = build_table(collect_runs(tmp_path), "intra").cell("intra", "Hopper")
+    assert cell.scores == (3500, 3600, 3650)
+    assert cell.n == 3 and cell.running == 1
+    assert cell.mean == pytest.approx(10750 / 3)
+    # deviations −250/3, 50/3, 200/3 → variance (62500 + 2500 + 40000) / 9 / 3 (ddof=0)
+    assert cell.std == pytest.approx(math.sqrt(35000 / 9))
+    assert cell.std != pytest.approx(np.std([3500, 3600, 3650], ddof=1))
+
+
+def test_result_json_is_the_score_when_present(tmp_path: Path) -> None:
+    run = intra_run(tmp_path, "Ant", "intra", 0, [100, 200])
+    result = json.loads((run / "result.json").read_text())
+    result["best_return"] = 250.0  # e.g. an evaluation the trainer did not log to metrics.csv
+    (run / "result.json").write_text(json.dumps(result))
+    (record,) = collect_runs(tmp_path)
+    assert record.best_return == 250.0 and record.finished
+    assert record.steps == (10_000, 20_000) and record.returns == (100, 200)
+
+
+def test_paper_value_appears_beside_ours_for_a_known_cell(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    intra_run(tmp_path, "Hopper", "intra", 1, [3600])
+    intra_run(tmp_path, "Hopper", "intra", 2, [3650])
+    result = build_table(collect_runs(tmp_path), "intra")
+    cell = result.cell("intra", "Hopper")
+    assert (cell.paper.mean, cell.paper.std) == (3583, 86)
+    markdown = render_markdown(result)
+    assert "**3583 ± 62** (n=3) · paper 3583 ± 86" in markdown
+    assert "paper 98.61%" in markdown  # the published APR of I_intra
+    latex = render_latex(result)
+    assert r"\textbf{3583 $\pm$ 62} {\scriptsize (n=3; paper 3583 $\pm$ 86)}" in latex
+    lines = list(csv.DictReader(io.StringIO(render_csv(result))))
+    (line,) = [line for line in lines if line["row"] == "intra" and line["task"] == "Hopper"]
+    assert float(line["mean"]) == pytest.approx(10750 / 3)
+    assert (line["n"], line["status"], line["paper_mean"], line["paper_std"]) == ("3", "ok", "3583.0", "86.0")
+
+
+def test_missing_cells_say_so_and_still_show_the_paper(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    result = build_table(collect_runs(tmp_path), "intra")
+    assert [row.key for row in result.rows] == [
+        "none", "self", "lateral", "bias", "lateral+bias", "self+bias", "self+lateral", "intra"]
+    assert result.tasks == ("Ant", "HalfCheetah", "Hopper", "Walker2d")
+    ant = result.cell("self", "Ant")
+    assert ant.n == 0 and ant.mean is None and not ant.best
+    markdown = render_markdown(result)
+    assert "| I\\_self | — · paper 5245 ± 769 |" in markdown
+    assert "Missing cells (no runs): 31 of 32" in markdown
+    assert "I\\_self: all tasks;" in markdown and "I\\_intra: Ant, HalfCheetah, Walker2d." in markdown
+    statuses = {(line["row"], line["task"]): line["status"] for line in csv.DictReader(io.StringIO(render_csv(result)))}
+    assert statuses["self", "Ant"] == "missing"
+    assert statuses["intra", "Hopper"] == "ok"
+    assert "-- {\\scriptsize (paper 5245 $\\pm$ 769)}" in render_latex(result)
+
+
+# ------------------------------------------------------------------------------------------------
+# APR and best marks
+
+
+def test_apr_against_dan_only_over_tasks_where_both_exist(tmp_path: Path) -> None:
+    make_run(tmp_path, "Ant", 0, "DAN", [1000], table="perf", row="dan", preset="dan")
+    make_run(tmp_path, "Ant", 1, "DAN", [1200], table="perf", row="dan", preset="dan")
+    make_run(tmp_path, "Hopper", 0, "DAN", [2000], table="perf", row="dan", preset="dan")
+    make_run(tmp_path, "Ant", 0, "PopSAN", [550], table="perf", row="popsan", preset="popsan")
+    make_run(tmp_path, "Hopper", 0, "PopSAN", [3000], table="perf", row="popsan", preset="popsan")
+    make_run(tmp_path, "Ant", 0, "ILC-SAN (E_pop_det)", [1650], table="perf", row="ilc-san-pop-det")
+    result = build_table(collect_runs(tmp_path), "perf")
+    # DAN Ant = (1000 + 1200) / 2 = 1100; PopSAN: (550/1100 + 3000/2000) / 2 = (0.5 + 1.5) / 2
+    assert result.row("dan").apr == pytest.approx(100.0)
+    assert result.row("popsan").apr == pytest.approx(100.0)
+    assert result.row("popsan").apr_tasks == 2
+    ilc = result.row("ilc-san-pop-det")
+    assert ilc.apr == pytest.approx(150.0) and ilc.apr_tasks == 1
+    assert ilc.best_apr and not result.row("popsan").best_apr
+    assert result.row("mdc-san").apr is None
+    markdown = render_markdown(result)
+    assert "**150.00%** (1/8 tasks) · paper 118.05%" in markdown
+    assert "100.00% (2/8 tasks) · paper 101.81%" in markdown
+    assert "Table perf's DAN row" in result.reference or "this table's DAN row" in result.reference
+
+
+def test_ablation_tables_take_their_dan_reference_from_table_perf(tmp_path: Path) -> None:
+    make_run(tmp_path, "Hopper", 0, "DAN", [3000], table="perf", row="dan", preset="dan")
+    make_run(tmp_path, "Walker2d", 0, "DAN", [4000], table="perf", row="dan", preset="dan")
+    intra_run(tmp_path, "Hopper", "intra", 0, [3600])
+    intra_run(tmp_path, "Walker2d", "intra", 0, [5000])
+    intra_run(tmp_path, "Hopper", "none", 0, [1500])
+    result = build_table(collect_runs(tmp_path), "intra")
+    assert result.reference == "Table perf's DAN row"
+    assert result.row("intra").apr == pytest.approx(100 * (3600 / 3000 + 5000 / 4000) / 2)
+    assert result.row("none").apr == pytest.approx(50.0)
+    assert result.row("self").apr is None
+
+
+def test_bold_marks_the_true_best_of_each_column(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Ant", "intra", 0, [5000])
+    intra_run(tmp_path, "Ant", "intra", 1, [1000])  # mean 3000, but a higher single seed
+    intra_run(tmp_path, "Ant", "self", 0, [3100])
+    intra_run(tmp_path, "Ant", "none", 0, [3050])
+    intra_run(tmp_path, "Hopper", "none", 0, [2000])
+    intra_run(tmp_path, "Hopper", "self", 0, [2000])  # a tie: both bold
+    result = build_table(collect_runs(tmp_path), "intra")
+    best_ant = [row.key for row in result.rows if row.cell("Ant").best]
+    assert best_ant == ["self"]
+    assert sorted(row.key for row in result.rows if row.cell("Hopper").best) == ["none", "self"]
+    markdown = render_markdown(result)
+    assert "**3100 ± 0** (n=1)" in markdown
+    assert "3000 ± 2000 (n=2)" in markdown and "**3000 ± 2000**" not in markdown
+
+
+# ------------------------------------------------------------------------------------------------
+# Runs without tags, skipped and duplicate runs
+
+
+def test_untagged_runs_make_rows_by_label_and_columns_by_task(tmp_path: Path) -> None:
+    make_run(tmp_path, "Pendulum-v1", 0, "mine", [-300, -150])
+    make_run(tmp_path, "Hopper", 0, "mine", [1000])
+    make_run(tmp_path, "Hopper", 1, "mine", [2000])
+    make_run(tmp_path, "Hopper", 0, "DAN", [1000], preset="dan")
+    result = build_table(collect_runs(tmp_path))
+    assert result.tasks == ("Hopper", "Pendulum-v1")  # the paper's tasks first, then the others
+    assert sorted(row.label for row in result.rows) == ["DAN", "mine"]
+    mine = result.row("mine")
+    assert mine.cell("Hopper").mean == 1500 and mine.cell("Pendulum-v1").mean == -150
+    assert mine.apr == pytest.approx(150.0) and mine.apr_tasks == 1
+    assert result.row("DAN").cell("Pendulum-v1").n == 0
+    assert "**-150 ± 0** (n=1)" in render_markdown(result)  # the only run of its column is the best
+
+
+def test_number_format_follows_the_paper_and_keeps_small_returns_readable() -> None:
+    assert format_stat(3583.333, 62.36) == "3583 ± 62"
+    assert format_stat(-15.04, 3.21) == "-15.0 ± 3.2"
+    assert format_stat(0.5, 0.1234) == "0.50 ± 0.12"
+
+
+def test_untagged_runs_are_placed_in_a_grid_table_by_label(tmp_path: Path) -> None:
+    make_run(tmp_path, "Hopper", 0, "I_self", [3000])
+    result = build_table(collect_runs(tmp_path), "intra")
+    assert result.cell("self", "Hopper").n == 1
+
+
+def test_a_corrupt_run_is_skipped_and_reported(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    bad_json = intra_run(tmp_path, "Hopper", "intra", 1, [3600])
+    (bad_json / "config.json").write_text("{not json")
+    empty_csv = intra_run(tmp_path, "Hopper", "intra", 2, [3600], result=False)
+    (empty_csv / "metrics.csv").write_text("")
+    bad_result = intra_run(tmp_path, "Hopper", "intra", 3, [3600])
+    (bad_result / "result.json").write_text('{"best_return": "high"}')
+    no_seed = intra_run(tmp_path, "Hopper", "intra", 4, [3600])
+    (no_seed / "config.json").write_text(json.dumps({"task": "Hopper", "label": "I_intra"}))
+    ragged = intra_run(tmp_path, "Hopper", "intra", 5, [3600])
+    with (ragged / "metrics.csv").open("a") as stream:
+        stream.write("60000,12\n")
+    scan = scan_runs(tmp_path)
+    assert [run.seed for run in scan.runs] == [0]
+    reasons = {run.path: run.reason for run in scan.skipped}
+    assert reasons[bad_json].startswith("config.json: invalid JSON")
+    assert reasons[empty_csv] == "metrics.csv: empty file"
+    assert "best_return" in reasons[bad_result]
+    assert "'seed' must be an integer" in reasons[no_seed]
+    assert "metrics.csv line 3" in reasons[ragged]
+    paths = write_report(tmp_path, tmp_path / "out", table="intra")
+    markdown = paths["markdown"].read_text()
+    assert "## Skipped runs" in markdown
+    assert f"- `{bad_json}`: config.json: invalid JSON" in markdown
+    assert "**3500 ± 0** (n=1) · paper 3583 ± 86" in markdown
+
+
+def test_header_only_metrics_is_skipped(tmp_path: Path) -> None:
+    run = intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    (run / "metrics.csv").write_text(HEADER + "\n")
+    (skipped,) = scan_runs(tmp_path).skipped
+    assert skipped.reason == "metrics.csv: no evaluation rows"
+
+
+def test_duplicate_runs_count_once(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500, 3600], subdir="a")
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500], subdir="b")
+    scan = scan_runs(tmp_path)
+    assert [run.path.name for run in scan.runs] == ["a"]
+    assert "duplicate of" in scan.skipped[0].reason
+
+
+def test_directories_below_a_run_are_not_runs(tmp_path: Path) -> None:
+    run = intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    (run / "checkpoints" / "step1").mkdir(parents=True)
+    (run / "checkpoints" / "step1" / "config.json").write_text("{}")
+    scan = scan_runs(tmp_path)
+    assert len(scan.runs) == 1 and not scan.skipped
+
+
+def test_report_without_table_groups_runs_by_their_tags(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    make_run(tmp_path, "Hopper", 0, "D_fr", [700], table="decode", row="fr", preset="popsan")
+    make_run(tmp_path, "Hopper", 0, "D_fr", [900], table="dec_intra", row="fr")
+    make_run(tmp_path, "Hopper", 0, "mine", [100])
+    results = report_tables(collect_runs(tmp_path))
+    assert [result.name for result in results] == ["decode", "dec_intra", "intra", None]
+    assert results[1].cell("fr", "Hopper").mean == 900
+    assert [row.label for row in results[3].rows] == ["mine"]
+    single = build_table(collect_runs(tmp_path))  # one table: the same label in two tables stays apart
+    assert sorted(row.label for row in single.rows) == [
+        "D_fr [dec_intra]", "D_fr [decode]", "I_intra", "mine"]
+    assert single.row("D_fr [decode]").cell("Hopper").paper.mean == 517
+
+
+def test_missing_directory_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="does not exist"):
+        scan_runs(tmp_path / "nope")
+
+
+# ------------------------------------------------------------------------------------------------
+# Learning curves
+
+
+def test_smoothing_is_a_trailing_moving_average_over_five_evaluations() -> None:
+    assert smooth(np.array([1.0, 2, 3, 4, 5, 6, 7])).tolist() == [1, 1.5, 2, 2.5, 3, 4, 5]
+    assert smooth(np.array([[0.0, 10], [2, 2]]), window=2).tolist() == [[0, 5], [2, 2]]
+
+
+def test_curves_are_aligned_on_common_steps(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [10, 20, 30])
+    intra_run(tmp_path, "Hopper", "intra", 1, [30, 40], result=False)
+    steps, mean, std = curve(collect_runs(tmp_path), window=1)
+    assert steps.tolist() == [10_000, 20_000]
+    assert mean.tolist() == [20, 30] and std.tolist() == [10, 10]
+
+
+def _is_png(path: Path) -> bool:
+    return path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plot_curves_one_panel_per_task(tmp_path: Path) -> None:
+    for seed in range(2):
+        intra_run(tmp_path / "runs", "Hopper", "intra", seed, list(np.linspace(0, 3000, 12) + seed * 100))
+        intra_run(tmp_path / "runs", "Hopper", "none", seed, list(np.linspace(0, 2000, 12)))
+    path = tmp_path / "plots" / "curves.png"
+    figure = plot_curves(collect_runs(tmp_path / "runs"), path, table="intra")
+    assert len(figure.axes) == 4
+    assert [axes.get_title() for axes in figure.axes] == ["Ant", "HalfCheetah", "Hopper", "Walker2d"]
+    hopper = figure.axes[2]
+    assert sorted(line.get_label() for line in hopper.get_lines()) == ["I_intra", "No I_intra"]
+    (intra_line,) = [line for line in hopper.get_lines() if line.get_label() == "I_intra"]
+    assert intra_line.get_ydata()[-1] == pytest.approx(np.mean(np.linspace(0, 3000, 12)[-5:]) + 50)
+    assert _is_png(path) and path.stat().st_size > 10_000
+    assert [p.name for p in path.parent.iterdir()] == ["curves.png"]  # no temporary file left
+    import matplotlib.image
+
+    height, width, _ = matplotlib.image.imread(path).shape
+    assert width > height > 100
+
+
+def test_plot_curves_for_the_perf_table_has_eight_panels(tmp_path: Path) -> None:
+    make_run(tmp_path, "Humanoid", 0, "DAN", [10, 20], table="perf", row="dan", preset="dan")
+    figure = plot_curves(collect_runs(tmp_path), tmp_path / "c.png", table="perf")
+    assert len(figure.axes) == 8
+
+
+def test_write_report_writes_all_four_files(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3200])
+    make_run(tmp_path, "Pendulum-v1", 0, "mine", [-300, -150])
+    paths = write_report(tmp_path)
+    assert set(paths) == {"markdown", "latex", "csv", "curves"}
+    assert all(path.parent == tmp_path and path.exists() for path in paths.values())
+    assert _is_png(paths["curves"])
+    latex = paths["latex"].read_text()
+    for rule in (r"\toprule", r"\midrule", r"\bottomrule", r"\usepackage{booktabs}", r"I\_intra"):
+        assert rule in latex
+    markdown = paths["markdown"].read_text()
+    assert "## Table `intra`: Max average rewards" in markdown and "Runs without a table tag" in markdown
+    assert "ddof=0" in markdown
+    lines = list(csv.DictReader(io.StringIO(paths["csv"].read_text())))
+    assert {line["table"] for line in lines} == {"intra", ""}
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left
+    # the report's own files are not runs: a second report finds the same runs
+    assert write_report(tmp_path)["markdown"].read_text() == markdown
+
+
+def test_write_report_on_an_empty_directory(tmp_path: Path) -> None:
+    paths = write_report(tmp_path)
+    assert "No runs found." in paths["markdown"].read_text()
+    assert _is_png(paths["curves"])
