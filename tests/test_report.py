@@ -7,12 +7,14 @@ import io
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from ilcsan.report import (
     build_table,
+    cmd_report,
     collect_runs,
     curve,
     format_stat,
@@ -21,6 +23,7 @@ from ilcsan.report import (
     render_latex,
     render_markdown,
     report_tables,
+    resolve_table,
     scan_runs,
     smooth,
     write_report,
@@ -198,6 +201,20 @@ def test_number_format_follows_the_paper_and_keeps_small_returns_readable() -> N
     assert format_stat(0.5, 0.1234) == "0.50 ± 0.12"
 
 
+def test_untagged_runs_with_the_same_label_but_other_switches_are_separate_rows(tmp_path: Path) -> None:
+    for seed, intra in ((0, "intra"), (0, "none"), (1, "none")):
+        run = make_run(tmp_path, "Hopper", seed, "ilc-san", [1000 + 500 * (intra == "none") + seed],
+                       subdir=f"{intra}{seed}")
+        config = json.loads((run / "config.json").read_text())
+        config["actor"] |= {"intra": intra, "decoder": "last"}
+        (run / "config.json").write_text(json.dumps(config))
+    scan = scan_runs(tmp_path)
+    assert len(scan.runs) == 3 and not scan.skipped  # same label and seed, other switches: not duplicates
+    result = build_table(scan.runs)
+    assert sorted(row.label for row in result.rows) == ["ilc-san (intra=intra)", "ilc-san (intra=none)"]
+    assert result.cell("ilc-san (intra=none)", "Hopper").scores == (1500, 1501)
+
+
 def test_untagged_runs_are_placed_in_a_grid_table_by_label(tmp_path: Path) -> None:
     make_run(tmp_path, "Hopper", 0, "I_self", [3000])
     result = build_table(collect_runs(tmp_path), "intra")
@@ -253,6 +270,43 @@ def test_directories_below_a_run_are_not_runs(tmp_path: Path) -> None:
     (run / "checkpoints" / "step1" / "config.json").write_text("{}")
     scan = scan_runs(tmp_path)
     assert len(scan.runs) == 1 and not scan.skipped
+
+
+def test_a_configuration_above_runs_is_a_container_not_a_run(tmp_path: Path) -> None:
+    (tmp_path / "config.json").write_text(json.dumps({"table": "intra", "seeds": 10}))
+    intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    (fresh / "config.json").write_text(json.dumps({"task": "Hopper", "seed": 0, "label": "x"}))
+    scan = scan_runs(tmp_path)
+    assert len(scan.runs) == 1
+    assert [(run.path, run.reason) for run in scan.skipped] == [
+        (fresh, "neither result.json nor metrics.csv (no evaluation yet)")]
+
+
+def test_a_run_before_its_first_evaluation_is_listed_not_scored(tmp_path: Path) -> None:
+    run = intra_run(tmp_path, "Hopper", "intra", 0, [3500])
+    (run / "metrics.csv").unlink()
+    (run / "result.json").write_text(json.dumps({"best_return": None, "best_step": None, "steps_done": 900,
+                                                 "steps_total": 1000, "finished": False}))
+    (skipped,) = scan_runs(tmp_path).skipped
+    assert skipped.reason.startswith("no evaluation yet")
+
+
+def test_cmd_report_accepts_a_grid_file_and_rejects_unknown_tables(tmp_path: Path, capsys) -> None:
+    runs = tmp_path / "runs"
+    make_run(runs, "Hopper", 0, "ILC-SAN", [3500], table="mine", row="ilc")
+    grid = tmp_path / "mine.toml"
+    grid.write_text('name = "mine"\ntasks = ["Hopper", "Ant"]\n[[rows]]\nslug = "ilc"\nlabel = "ILC-SAN"\n'
+                    'preset = "ilc-san"\n')
+    args = SimpleNamespace(directory=str(runs), table=str(grid), out=str(tmp_path / "out"))
+    assert cmd_report(args) == 0
+    assert "1 run(s) found" in capsys.readouterr().out
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "| ILC-SAN | **3500 ± 0** (n=1) | — |" in markdown
+    assert resolve_table("mine", collect_runs(runs)) == "mine"  # a tag found among the runs
+    with pytest.raises(ValueError, match="no table 'intro'"):
+        resolve_table("intro", collect_runs(runs))
 
 
 def test_report_without_table_groups_runs_by_their_tags(tmp_path: Path) -> None:

@@ -10,10 +10,12 @@ A run is a directory holding (written by the trainer):
 ``result.json``  ``best_return``, ``best_step``, ``steps_done``, ``steps_total``, ``finished``; absent
                  while the run is still going (then the best evaluation of ``metrics.csv`` is used).
 
-Runs are found anywhere below a directory by their ``config.json`` (runs are not nested: the search
-does not descend into a run directory). A run with a missing or malformed file is skipped and listed
-with the reason; two runs with the same (table, row/label, task, seed) count once (the one with more
-steps done), the other is listed as a duplicate.
+Runs are found anywhere below a directory by their ``config.json``. The search does not descend into a
+run (a directory with ``config.json`` and ``metrics.csv`` or ``result.json``), and a directory whose
+``config.json`` sits above other runs is a container (e.g. a grid's own configuration), not a run.
+A run with a missing or malformed file is skipped and listed with the reason; two runs with the same
+(table, row/label, task, seed) count once (the one with more steps done), the other is listed as a
+duplicate.
 
 Statistics, as in the paper (Section V-A, Tables ``tab:perf`` … ``tab:layer``):
 
@@ -115,7 +117,7 @@ class RunScan:
     skipped: tuple[SkippedRun, ...]
 
 
-class _RunError(Exception):
+class RunFileError(ValueError):
     """A run's files are missing or malformed; the message is the reason shown in the report."""
 
 
@@ -124,17 +126,26 @@ def scan_runs(directory: str | Path) -> RunScan:
     root = Path(directory)
     if not root.is_dir():
         raise UserError(f"run directory {root} does not exist or is not a directory")
-    runs: list[RunRecord] = []
-    skipped: list[SkippedRun] = []
+    candidates: list[Path] = []
+    pending: list[Path] = []  # config.json without metrics.csv/result.json: a container or a fresh run
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(name for name in dirnames if not name.startswith("."))
         if "config.json" not in filenames:
             continue
-        dirnames[:] = []  # a run directory is a leaf: checkpoints below it are not runs
+        if "metrics.csv" in filenames or "result.json" in filenames:
+            dirnames[:] = []  # a run's subdirectories (checkpoints, replay, ...) hold no runs
+            candidates.append(Path(dirpath))
+        else:
+            pending.append(Path(dirpath))
+    found = candidates + pending
+    candidates += [path for path in pending if not any(path in other.parents for other in found)]
+    runs: list[RunRecord] = []
+    skipped: list[SkippedRun] = []
+    for path in sorted(candidates):
         try:
-            runs.append(read_run(Path(dirpath)))
-        except _RunError as error:
-            skipped.append(SkippedRun(Path(dirpath), str(error)))
+            runs.append(read_run(path))
+        except RunFileError as error:
+            skipped.append(SkippedRun(path, str(error)))
     kept, duplicates = _drop_duplicates(runs)
     return RunScan(tuple(kept), tuple(skipped + duplicates))
 
@@ -145,7 +156,7 @@ def collect_runs(directory: str | Path) -> list[RunRecord]:
 
 
 def read_run(directory: str | Path) -> RunRecord:
-    """Read one run directory; raises an internal error whose message says what is wrong."""
+    """Read one run directory; raises :class:`RunFileError` saying what is missing or malformed."""
     directory = Path(directory)
     config = _read_json_object(directory / "config.json")
     task, seed, label, table, row, actor = _parse_config(config)
@@ -153,8 +164,10 @@ def read_run(directory: str | Path) -> RunRecord:
     steps, returns = _read_metrics(metrics) if metrics.exists() else ((), ())
     result = _read_json_object(result_file) if result_file.exists() else None
     if result is None and not steps:
-        raise _RunError("neither result.json nor metrics.csv (no evaluation yet)")
-    if result is not None:
+        raise RunFileError("neither result.json nor metrics.csv (no evaluation yet)")
+    if result is not None and result.get("best_return") is None and not steps:
+        raise RunFileError("no evaluation yet (result.json has no best_return, metrics.csv no rows)")
+    if result is not None and result.get("best_return") is not None:
         best_return, best_step, steps_done, steps_total, finished = _parse_result(result, steps)
     else:  # still running: the best evaluation so far
         best = int(np.argmax(returns))
@@ -171,13 +184,13 @@ def _read_json_object(path: Path) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as error:
-        raise _RunError(f"{path.name}: cannot be read ({error})") from None
+        raise RunFileError(f"{path.name}: cannot be read ({error})") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as error:
-        raise _RunError(f"{path.name}: invalid JSON ({error.msg} at line {error.lineno})") from None
+        raise RunFileError(f"{path.name}: invalid JSON ({error.msg} at line {error.lineno})") from None
     if not isinstance(data, dict):
-        raise _RunError(f"{path.name}: expected a JSON object, got {type(data).__name__}")
+        raise RunFileError(f"{path.name}: expected a JSON object, got {type(data).__name__}")
     return data
 
 
@@ -186,48 +199,48 @@ def _optional_str(config: Mapping[str, Any], key: str) -> str | None:
     if value is None:
         return None
     if not isinstance(value, str) or not value:
-        raise _RunError(f"config.json: {key!r} must be a non-empty string, got {value!r}")
+        raise RunFileError(f"config.json: {key!r} must be a non-empty string, got {value!r}")
     return value
 
 
 def _parse_config(config: Mapping[str, Any]) -> tuple[str, int, str, str | None, str | None, dict]:
     task = _optional_str(config, "task")
     if task is None:
-        raise _RunError("config.json: missing 'task'")
+        raise RunFileError("config.json: missing 'task'")
     seed = config.get("seed")
     if isinstance(seed, bool) or not isinstance(seed, int):
-        raise _RunError(f"config.json: 'seed' must be an integer, got {seed!r}")
+        raise RunFileError(f"config.json: 'seed' must be an integer, got {seed!r}")
     actor = config.get("actor", {})
     if actor is None:
         actor = {}
     if not isinstance(actor, dict):
-        raise _RunError(f"config.json: 'actor' must be an object, got {actor!r}")
+        raise RunFileError(f"config.json: 'actor' must be an object, got {actor!r}")
     table, row = _optional_str(config, "table"), _optional_str(config, "row")
     label = _optional_str(config, "label") or row or actor.get("preset")
     if not isinstance(label, str):
-        raise _RunError("config.json: missing 'label'")
+        raise RunFileError("config.json: missing 'label'")
     return task, seed, label, table, row, actor
 
 
 def _number(value: Any, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise _RunError(f"result.json: {name!r} must be a finite number, got {value!r}")
+        raise RunFileError(f"result.json: {name!r} must be a finite number, got {value!r}")
     return float(value)
 
 
 def _parse_result(result: Mapping[str, Any],
                   steps: tuple[int, ...]) -> tuple[float, int, int, int | None, bool]:
     if "best_return" not in result:
-        raise _RunError("result.json: missing 'best_return'")
+        raise RunFileError("result.json: missing 'best_return'")
     best_return = _number(result["best_return"], "best_return")
     fallback_step = steps[-1] if steps else 0
-    best_step = int(_number(result.get("best_step", 0), "best_step"))
+    best_step = int(_number(result.get("best_step") or 0, "best_step"))
     steps_done = int(_number(result.get("steps_done", fallback_step), "steps_done"))
     total = result.get("steps_total")
     steps_total = None if total is None else int(_number(total, "steps_total"))
     finished = result.get("finished", False)
     if not isinstance(finished, bool):
-        raise _RunError(f"result.json: 'finished' must be true or false, got {finished!r}")
+        raise RunFileError(f"result.json: 'finished' must be true or false, got {finished!r}")
     return best_return, best_step, steps_done, steps_total, finished
 
 
@@ -236,39 +249,50 @@ def _read_metrics(path: Path) -> tuple[tuple[int, ...], tuple[float, ...]]:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as error:
-        raise _RunError(f"metrics.csv: cannot be read ({error})") from None
+        raise RunFileError(f"metrics.csv: cannot be read ({error})") from None
     lines = [line for line in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in line)]
     if not lines:
-        raise _RunError("metrics.csv: empty file")
+        raise RunFileError("metrics.csv: empty file")
     header = [name.strip() for name in lines[0]]
     for name in REQUIRED_METRICS:
         if name not in header:
-            raise _RunError(f"metrics.csv: the header has no {name!r} column")
+            raise RunFileError(f"metrics.csv: the header has no {name!r} column")
     i_step, i_return = header.index("step"), header.index("eval_return_mean")
     by_step: dict[int, float] = {}
     for number, line in enumerate(lines[1:], start=2):
         if len(line) != len(header):
-            raise _RunError(f"metrics.csv line {number}: {len(line)} fields, the header has {len(header)}")
+            raise RunFileError(f"metrics.csv line {number}: {len(line)} fields, the header has {len(header)}")
         try:
             step, value = float(line[i_step]), float(line[i_return])
         except ValueError:
-            raise _RunError(f"metrics.csv line {number}: not a number") from None
+            raise RunFileError(f"metrics.csv line {number}: not a number") from None
         if not (math.isfinite(step) and step == int(step) and step >= 0 and math.isfinite(value)):
-            raise _RunError(f"metrics.csv line {number}: bad step or return "
+            raise RunFileError(f"metrics.csv line {number}: bad step or return "
                             f"({line[i_step]}, {line[i_return]})")
         by_step[int(step)] = value
     if not by_step:
-        raise _RunError("metrics.csv: no evaluation rows")
+        raise RunFileError("metrics.csv: no evaluation rows")
     ordered = sorted(by_step)
     return tuple(ordered), tuple(by_step[step] for step in ordered)
 
 
+def _actor_key(run: RunRecord) -> str:
+    return json.dumps(run.actor, sort_keys=True, default=str)
+
+
+def _row_identity(run: RunRecord) -> tuple:
+    """A grid run's row is its (table, row) tag; any other run's is its label and actor switches."""
+    if run.table and run.row:
+        return run.table, run.row
+    return run.table, run.label, _actor_key(run)
+
+
 def _identity(run: RunRecord) -> tuple:
-    return run.table, run.row or run.label, run.task, run.seed
+    return *_row_identity(run), run.task, run.seed
 
 
 def _drop_duplicates(runs: Sequence[RunRecord]) -> tuple[list[RunRecord], list[SkippedRun]]:
-    """Keep one run per (table, row, task, seed): the one with more steps done (then the first path)."""
+    """Keep one run per (row, task, seed): the one with more steps done (then the first path)."""
     best: dict[tuple, RunRecord] = {}
     for run in runs:
         kept = best.get(_identity(run))
@@ -378,6 +402,8 @@ class _Group:
     paper: tuple[str, str] | None = None
     runnable: bool = True
     runs: list[RunRecord] = field(default_factory=list)
+    table: str | None = None
+    actor: Mapping[str, Any] = field(default_factory=dict)
 
 
 def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None) -> TableResult:
@@ -427,12 +453,14 @@ def _build_free(runs: Sequence[RunRecord], name: str | None, caption: str,
                 reference: Sequence[RunRecord]) -> TableResult:
     groups: dict[tuple, _Group] = {}
     for run in sorted(runs, key=_free_order):
-        key = (run.table, run.row) if run.table and run.row else (None, run.label)
+        key = _row_identity(run)
         if key not in groups:
-            paper = key if key[0] in TABLES else None
-            groups[key] = _Group(run.row if key[0] else run.label, run.label, paper)
+            tagged = len(key) == 2
+            paper = key if tagged and run.table in TABLES else None
+            groups[key] = _Group(run.row if tagged else run.label, run.label, paper, table=run.table,
+                                 actor=run.actor)
         groups[key].runs.append(run)
-    _disambiguate(list(groups.items()))
+    _disambiguate(list(groups.values()))
     return _finish(name, caption, _tasks_in(runs), list(groups.values()), reference)
 
 
@@ -446,13 +474,32 @@ def _free_order(run: RunRecord) -> tuple:
     return 1, 0, 0, run.label, str(run.path)
 
 
-def _disambiguate(groups: list[tuple[tuple, _Group]]) -> None:
-    """Make labels unique (the same label in two tables, e.g. ``D_fr``) and keys unique."""
-    labels = [group.label for _, group in groups]
-    for (table, _), group in groups:
-        if labels.count(group.label) > 1 and table:
-            group.label = f"{group.label} [{table}]"
-            group.key = f"{table}/{group.key}"
+def _disambiguate(groups: list[_Group]) -> None:
+    """Make row labels and keys unique: the same label in two tables (``D_fr [decode]``), or on runs
+    with different actor switches (``ilc-san (intra=none)``, the switches that differ are shown)."""
+    for same in _same_label(groups):
+        if len({group.table for group in same}) > 1:
+            for group in same:
+                if group.table:
+                    group.label, group.key = f"{group.label} [{group.table}]", f"{group.table}/{group.key}"
+    for same in _same_label(groups):
+        switches = sorted({key for group in same for key in group.actor})
+        differing = [key for key in switches if len({repr(group.actor.get(key)) for group in same}) > 1]
+        for group in same if differing else ():
+            group.label += " (" + ", ".join(f"{key}={group.actor.get(key)}" for key in differing) + ")"
+            group.key = group.label
+    seen: dict[str, int] = {}
+    for group in groups:  # last resort: number what is still ambiguous
+        seen[group.key] = seen.get(group.key, 0) + 1
+        if seen[group.key] > 1:
+            group.key = group.label = f"{group.label} #{seen[group.key]}"
+
+
+def _same_label(groups: Sequence[_Group]) -> list[list[_Group]]:
+    """Groups that share a label, for every label shared by more than one group."""
+    labels = [group.label for group in groups]
+    shared = sorted({label for label in labels if labels.count(label) > 1})
+    return [[group for group in groups if group.label == label] for label in shared]
 
 
 def _tasks_in(runs: Iterable[RunRecord]) -> tuple[str, ...]:
@@ -891,3 +938,27 @@ def write_report(directory: str | Path, out_dir: str | Path | None = None,
     _write_text(paths["csv"], render_csv(results))
     draw_curves(results, paths["curves"])
     return paths
+
+
+def resolve_table(table: str | None, runs: Sequence[RunRecord] = ()) -> str | TableSpec | None:
+    """The ``--table`` option: a paper table's name, a tag found among the runs, or a TOML grid file."""
+    if table is None or table in TABLES or any(run.table == table for run in runs):
+        return table
+    if table.endswith(".toml"):
+        from .grids import load_grid
+
+        return load_grid(table)
+    tags = sorted({run.table for run in runs if run.table and run.table not in TABLES})
+    raise UserError(f"no table {table!r}: use one of {', '.join([*TABLES, *tags])} or a grid's .toml file")
+
+
+def cmd_report(args) -> int:
+    """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
+    scan = scan_runs(args.directory)
+    table = resolve_table(args.table, scan.runs)
+    paths = write_report(args.directory, args.out, table)
+    print(f"ilcsan report: {len(scan.runs)} run(s) found below {args.directory}"
+          + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
+    for kind, path in paths.items():
+        print(f"  {kind:<8} {path}")
+    return 0
