@@ -21,7 +21,8 @@ from ilcsan.neurons import (
 )
 
 
-def run_clif(inputs: list[float], params: CLIFParams = CLIFParams()) -> tuple[list[float], list[float]]:
+def run_clif(inputs: list[float], params: CLIFParams | None = None) -> tuple[list[float], list[float]]:
+    params = CLIFParams() if params is None else params
     state = clif_initial_state(torch.zeros(1), params)
     spikes, voltages = [], []
     for x in inputs:

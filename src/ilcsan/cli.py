@@ -251,7 +251,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
           f"1M-step protocol); results in {out}")
     results = train(config, out, resume=args.resume, progress=None)
     _print_results(results, out)
-    from .report import plot_curves, collect_runs
+    from .report import collect_runs, plot_curves
 
     picture = out / "learning_curve.png"
     plot_curves(collect_runs(out), picture)
@@ -291,7 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     train.add_argument("--label", help="row label for reports (default: the preset)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar (one line per evaluation)")
-    train.set_defaults(run=cmd_train)
+    train.set_defaults(handler=cmd_train)
 
     evaluate = commands.add_parser("evaluate", help="evaluate a trained actor",
                                    description="Run deterministic episodes with a trained actor.")
@@ -299,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--episodes", type=_positive_int, default=10, help="episodes (paper: 10)")
     evaluate.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed of the first episode")
     evaluate.add_argument("--task", help="evaluate on another task of the same shape (default: the training task)")
-    evaluate.set_defaults(run=cmd_evaluate)
+    evaluate.set_defaults(handler=cmd_evaluate)
 
     export = commands.add_parser("export", help="export a trained actor (npz bundle or NIR graph)",
                                  description="Export a trained actor for deployment.")
@@ -307,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--format", default="npz", help="npz (deploy bundle) | nir (neuromorphic graph)")
     export.add_argument("--out", help="output file (default: <run>/actor.<format>)")
     export.add_argument("--weights", default="float32", help="float32 (default) | int8 (per-layer scales)")
-    export.set_defaults(run=cmd_export)
+    export.set_defaults(handler=cmd_export)
 
     reproduce = commands.add_parser("reproduce", help="run a table of the paper as a grid of runs",
                                     description="Run the grid of a paper table (or your own TOML grid).")
@@ -325,14 +325,14 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
     reproduce.add_argument("--workers", type=_positive_int, default=None, help="parallel runs (default: cores)")
     reproduce.add_argument("--device", default="cpu", help="cpu | cuda")
-    reproduce.set_defaults(run=_lazy("experiments", "cmd_reproduce"))
+    reproduce.set_defaults(handler=_lazy("experiments", "cmd_reproduce"))
 
     report = commands.add_parser("report", help="tables and learning curves from runs",
                                  description="Build the paper's tables and learning curves from runs on disk.")
     report.add_argument("directory", help="folder holding runs (searched recursively)")
     report.add_argument("--table", default=None, help="table layout to use (default: from the runs' tags)")
     report.add_argument("--out", default=None, help="where to write report.md/.tex/.csv and curves.png")
-    report.set_defaults(run=_lazy("report", "cmd_report"))
+    report.set_defaults(handler=_lazy("report", "cmd_report"))
 
     energy = commands.add_parser("energy", help="firing rates, operation counts and energy per inference",
                                  description="Energy analysis of trained actors (Section V-F).")
@@ -340,14 +340,14 @@ def build_parser() -> argparse.ArgumentParser:
     energy.add_argument("--episodes", type=_positive_int, default=1, help="episodes to measure (paper: 1)")
     energy.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed")
     energy.add_argument("--json", action="store_true", help="print JSON instead of tables")
-    energy.set_defaults(run=_lazy("energy", "cmd_energy"))
+    energy.set_defaults(handler=_lazy("energy", "cmd_energy"))
 
     actors = commands.add_parser("actors", help="list the actor presets and their settings")
     actors.add_argument("--json", action="store_true", help="every switch of every preset as JSON")
-    actors.set_defaults(run=cmd_actors)
+    actors.set_defaults(handler=cmd_actors)
 
     tasks = commands.add_parser("tasks", help="list the paper's tasks and their sizes")
-    tasks.set_defaults(run=cmd_tasks)
+    tasks.set_defaults(handler=cmd_tasks)
 
     demo = commands.add_parser("demo", help="train ILC-SAN briefly on a small task and plot its learning curve",
                                description="A short ILC-SAN run that shows the whole pipeline in minutes.")
@@ -357,7 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="runs/demo", help="run directory (default runs/demo)")
     demo.add_argument("--threads", type=_positive_int, default=None)
     demo.add_argument("--resume", action="store_true", help="continue an interrupted demo")
-    demo.set_defaults(run=cmd_demo)
+    demo.set_defaults(handler=cmd_demo)
     return parser
 
 
@@ -369,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command is None:
             parser.print_help()
             return EXIT_USER_ERROR
-        return int(args.run(args) or 0)
+        return int(args.handler(args) or 0)
     except UserError as error:
         print(f"ilcsan: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR

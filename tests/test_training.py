@@ -1,0 +1,123 @@
+"""TD3 training: K seeds in one process equal single runs, checkpoints resume exactly, results on disk."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from ilcsan.config import TD3Config, actor_config
+from ilcsan.errors import UserError
+from ilcsan.td3 import TD3Agent
+from ilcsan.training import RunConfig, Trainer, train
+
+TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
+
+
+def tiny_run(**overrides) -> RunConfig:
+    values = dict(task="Pendulum-v1", seeds=(0,), steps=300, eval_every=150, eval_episodes=1,
+                  actor=actor_config("ilc-san", hidden=(16, 16)), td3=TINY_TD3, threads=1)
+    values.update(overrides)
+    return RunConfig(**values)
+
+
+def read_metrics(path):
+    with open(path) as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_critic_target_uses_min_of_twins_and_ignores_truncation():
+    agent = TD3Agent(actor_config("dan", hidden=(8,)), TD3Config(target_noise=0.0), 3, 1, [2.0], [0.0], seeds=(0,))
+    batch = {"obs": torch.zeros(1, 4, 3), "action": torch.zeros(1, 4, 1), "reward": torch.ones(1, 4),
+             "next_obs": torch.ones(1, 4, 3), "terminal": torch.tensor([[0.0, 1.0, 0.0, 1.0]])}
+    with torch.no_grad():
+        next_action = agent.actor_target(batch["next_obs"])
+        q_next = agent.critic_target(batch["next_obs"], next_action).min(dim=1).values
+        expected_target = 1.0 + 0.99 * (1 - batch["terminal"]) * q_next
+        q = agent.critic(batch["obs"], batch["action"])
+    expected = ((q - expected_target.unsqueeze(1)) ** 2).mean(-1).sum()
+    assert torch.allclose(agent.critic_loss(batch), expected)
+
+
+def test_each_seed_of_an_ensemble_updates_like_a_single_run():
+    config = actor_config("ilc-san", hidden=(16, 16))
+    many = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(4, 11))
+    single = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(11,))
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        arrays = {"obs": rng.normal(size=(2, 32, 3)), "action": rng.uniform(-1, 1, (2, 32, 2)),
+                  "reward": rng.normal(size=(2, 32)), "next_obs": rng.normal(size=(2, 32, 3)),
+                  "terminal": (rng.uniform(size=(2, 32)) < 0.1)}
+        arrays = {k: v.astype(np.float32) for k, v in arrays.items()}
+        many.update(many.to_batch(arrays))
+        single.update(single.to_batch({k: v[1:] for k, v in arrays.items()}))
+    for module in ("actor", "critic"):
+        factor = 2 if module == "critic" else 1
+        for (name, p_many), (_, p_single) in zip(getattr(many, module).named_parameters(),
+                                                 getattr(single, module).named_parameters(), strict=True):
+            assert torch.allclose(p_many[factor:], p_single, atol=1e-5), f"{module}.{name}"
+    assert many.updates == 4
+
+
+def test_multi_seed_run_equals_single_runs(tmp_path):
+    together = train(tiny_run(seeds=(0, 1)), tmp_path / "together", progress=False, log=lambda *_: None)
+    train(tiny_run(seeds=(1,)), tmp_path / "alone", progress=False, log=lambda *_: None)
+    assert [r["directory"] for r in together] == [str(tmp_path / "together" / f"seed{s}") for s in (0, 1)]
+    rows_together = read_metrics(tmp_path / "together" / "seed1" / "metrics.csv")
+    rows_alone = read_metrics(tmp_path / "alone" / "metrics.csv")
+    assert len(rows_together) == len(rows_alone) == 2
+    for a, b in zip(rows_together, rows_alone, strict=True):
+        assert float(a["eval_return_mean"]) == pytest.approx(float(b["eval_return_mean"]), rel=1e-4)
+    rows_seed0 = read_metrics(tmp_path / "together" / "seed0" / "metrics.csv")
+    assert rows_seed0[0]["eval_return_mean"] != rows_together[0]["eval_return_mean"]
+
+
+def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
+    config = tiny_run(steps=450)
+    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
+
+    original = Trainer._write_checkpoints
+    calls = {"n": 0}
+
+    def crash_after_first_checkpoint(self):
+        original(self)
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "_write_checkpoints", crash_after_first_checkpoint)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, tmp_path / "interrupted", progress=False, log=lambda *_: None)
+    monkeypatch.setattr(Trainer, "_write_checkpoints", original)
+    assert len(read_metrics(tmp_path / "interrupted" / "metrics.csv")) == 1
+    with pytest.raises(UserError, match="--resume"):
+        train(config, tmp_path / "interrupted", progress=False, log=lambda *_: None)
+    train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
+    straight = read_metrics(tmp_path / "straight" / "metrics.csv")
+    resumed = read_metrics(tmp_path / "interrupted" / "metrics.csv")
+    assert [r["eval_return_mean"] for r in resumed] == [r["eval_return_mean"] for r in straight]
+    result = json.loads((tmp_path / "interrupted" / "result.json").read_text())
+    assert result["finished"] and result["steps_done"] == 450
+
+
+def test_resume_refuses_a_run_with_other_settings(tmp_path):
+    train(tiny_run(), tmp_path / "run", progress=False, log=lambda *_: None)
+    other = tiny_run(actor=actor_config("popsan", hidden=(16, 16)))
+    with pytest.raises(UserError, match="different settings"):
+        train(other, tmp_path / "run", resume=True, progress=False, log=lambda *_: None)
+
+
+def test_run_directory_contents(tmp_path):
+    train(tiny_run(), tmp_path / "run", progress=False, log=lambda *_: None)
+    names = {p.name for p in (tmp_path / "run").iterdir()}
+    assert {"config.json", "metrics.csv", "result.json", "policy.pt", "checkpoint.pt", "replay",
+            "tensorboard"} <= names
+    assert not [p for p in (tmp_path / "run").rglob("*.tmp")], "no temporary file may be left behind"
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["seed"] == 0 and config["actor"]["intra"] == "intra" and config["label"] == "ilc-san"
+    assert list(read_metrics(tmp_path / "run" / "metrics.csv")[0]) == [
+        "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second"]
+    assert list((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard events are written"
