@@ -131,6 +131,8 @@ def _add_run_options(parser: argparse.ArgumentParser, steps_default: int | None)
     parser.add_argument("--engine", default="fast", help="fast (layer-major, default) | reference (Algorithm 1)")
     parser.add_argument("--threads", type=_positive_int, default=None,
                         help="torch threads (default: torch's own; use 1 when several runs share the cores)")
+    parser.add_argument("--compile", default="auto",
+                        help="torch.compile the networks: auto (default: on for runs of 50000 steps or more) | on | off")
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
@@ -148,7 +150,7 @@ def build_run_config(args: argparse.Namespace, task: str | None = None):
         eval_every=args.eval_every or defaults["eval_every"],
         eval_episodes=args.eval_episodes or defaults["eval_episodes"],
         actor=actor, td3=TD3Config(**td3_overrides), device=args.device, engine=args.engine, threads=args.threads,
-        label=getattr(args, "label", None),
+        compile=args.compile, label=getattr(args, "label", None),
     )
 
 

@@ -59,7 +59,7 @@ class TD3Agent:
 
     def __init__(self, actor_config: ActorConfig, td3: TD3Config, state_dim: int, action_dim: int,
                  action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
-                 device: str | torch.device = "cpu"):
+                 device: str | torch.device = "cpu", compile: bool = False):
         self.config, self.td3, self.seeds = actor_config, td3, list(seeds)
         self.device = torch.device(device)
         self.actor = build_actor(actor_config, state_dim, action_dim, action_scale, action_offset,
@@ -69,8 +69,14 @@ class TD3Agent:
         self.critic_target = copy.deepcopy(self.critic)
         for module in (self.actor_target, self.critic_target):
             module.requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr)
+        fused = self.device.type in ("cpu", "cuda")
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate, fused=fused)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr, fused=fused)
+        self.compiled = compile
+        # The networks as called in the hot path: compiled graphs (one per input shape) or the modules themselves.
+        wrap = (lambda module: torch.compile(module, dynamic=False)) if compile else (lambda module: module)
+        self.actor_fn, self.actor_target_fn = wrap(self.actor), wrap(self.actor_target)
+        self.critic_fn, self.critic_target_fn = wrap(self.critic), wrap(self.critic_target)
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)
@@ -82,7 +88,7 @@ class TD3Agent:
     def act(self, normalized_state: np.ndarray) -> np.ndarray:
         """Deterministic actions for one normalised state per seed: (K, N) → (K, M)."""
         state = torch.as_tensor(normalized_state, device=self.device).unsqueeze(1)
-        return self.actor(state).squeeze(1).cpu().numpy()
+        return self.actor_fn(state).squeeze(1).cpu().numpy()
 
     # ------------------------------------------------------------------------------ learning
     def _target_noise(self, shape: tuple[int, ...]) -> torch.Tensor:
@@ -94,18 +100,18 @@ class TD3Agent:
     def critic_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Σ_k Σ_j mean_b (Q_j(s, a) − y)², with y from the target actor and the min of the target twins."""
         with torch.no_grad():
-            next_action = self.actor_target(batch["next_obs"])
+            next_action = self.actor_target_fn(batch["next_obs"])
             next_action = next_action + self._target_noise(tuple(next_action.shape))
             next_action = torch.maximum(torch.minimum(next_action, self.offset + self.scale),
                                         self.offset - self.scale)
-            target_q = self.critic_target(batch["next_obs"], next_action).min(dim=1).values
+            target_q = self.critic_target_fn(batch["next_obs"], next_action).min(dim=1).values
             target = batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * target_q
-        q_values = self.critic(batch["obs"], batch["action"])
+        q_values = self.critic_fn(batch["obs"], batch["action"])
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
     def actor_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Σ_k −mean_b Q_1(s, π(s))."""
-        q_values = self.critic(batch["obs"], self.actor(batch["obs"]))
+        q_values = self.critic_fn(batch["obs"], self.actor_fn(batch["obs"]))
         return -q_values[:, 0].mean(dim=-1).sum()
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:

@@ -18,10 +18,12 @@ Run directory (one seed)::
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -45,6 +47,7 @@ FORMAT_VERSION = 1
 METRIC_FIELDS = ("step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds",
                  "steps_per_second")
 EVAL_SEED_OFFSET = 1_000_000
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,7 @@ class RunConfig:
     device: str = "cpu"
     engine: str = "fast"  # fast | reference
     threads: int | None = None  # torch threads; None: torch's default
+    compile: str = "auto"  # torch.compile the networks: on | off | auto (on for runs of 50 000 steps or more)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`
@@ -95,10 +99,80 @@ def validate_run(config: RunConfig) -> None:
         raise UserError(f"--engine {config.engine!r} is not one of: fast, reference")
     if config.td3.batch_size < 1 or config.td3.update_every < 1 or config.td3.policy_delay < 1:
         raise UserError("--batch-size, --update-every and --policy-delay must be at least 1")
-    if config.device.startswith("cuda") and not torch.cuda.is_available():
+    try:
+        device = torch.device(config.device)
+    except (RuntimeError, TypeError, ValueError):
+        raise UserError(f"--device {config.device!r} is not a device; use cpu, cuda or cuda:N") from None
+    if device.type not in ("cpu", "cuda"):
+        raise UserError(f"--device {config.device!r} is not supported; use cpu, cuda or cuda:N")
+    if device.type == "cuda" and not torch.cuda.is_available():
         raise UserError("--device cuda was asked for but no CUDA device is available; use --device cpu")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise UserError(f"--device {config.device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    if config.compile not in ("auto", "on", "off"):
+        raise UserError(f"--compile {config.compile!r} is not one of: auto, on, off")
     if config.threads is not None and config.threads < 1:
         raise UserError(f"--threads must be at least 1, got {config.threads}")
+    most_threads = 4 * (os.cpu_count() or 1)
+    if config.threads is not None and config.threads > most_threads:
+        raise UserError(f"--threads {config.threads} is more than 4 per core ({most_threads} here); use at most "
+                        f"{os.cpu_count() or 1}")
+
+
+def memory_estimate(config: RunConfig, state_dim: int, action_dim: int) -> dict[str, int]:
+    """A lower bound of the bytes a run needs: networks (weights, targets, gradients, Adam's two moments),
+    one update's activations (measured: 5-14x the layers' outputs over T steps; 4x is counted) and the
+    full replay buffers. Used to refuse, before anything starts, a run that cannot fit in memory."""
+    actor, td3, seeds = config.actor, config.td3, len(config.seeds)
+    if actor.network == "deep":
+        sizes, timesteps, extra = [state_dim, *actor.hidden, action_dim], 1, 0
+    else:
+        per_input = (actor.population_in if actor.encoder.startswith("pop")
+                     else 2 if actor.encoder == "two-neuron" else 1)
+        sizes, timesteps = [state_dim * per_input, *actor.hidden, action_dim * actor.population_out], actor.timesteps
+        extra = action_dim * actor.population_out * (actor.population_out + 3) + 2 * state_dim * per_input
+    critic = [state_dim + action_dim, *td3.critic_hidden, 1]
+
+    def parameters(widths: list[int]) -> int:
+        return sum(a * b + b for a, b in zip(widths[:-1], widths[1:], strict=False))
+
+    weights = 4 * seeds * 5 * (parameters(sizes) + extra + 2 * parameters(critic))
+    activations = 4 * 4 * seeds * td3.batch_size * timesteps * sum(sizes)
+    replay = 4 * seeds * min(td3.replay_size, config.steps) * (2 * state_dim + action_dim + 2)
+    return {"networks": weights + activations, "replay": replay}
+
+
+def physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(config: RunConfig, state_dim: int, action_dim: int) -> None:
+    """Refuse a run whose networks or replay buffers cannot fit in this machine's memory at all."""
+    total = physical_memory()
+    if not total:
+        return
+    need = memory_estimate(config, state_dim, action_dim)
+    if config.device != "cpu":
+        need["networks"] = 0  # on the accelerator; its memory is the framework's to report
+    if sum(need.values()) > total:
+        gib = 2 ** 30
+        raise UserError(
+            f"this run needs at least {need['networks'] / gib:.1f} GiB for its networks and "
+            f"{need['replay'] / gib:.1f} GiB for its replay buffers, more than this machine's {total / gib:.1f} GiB; "
+            "use fewer seeds per run, a smaller --batch-size, --hidden-width, --timesteps or populations")
+
+
+COMPILE_AUTO_STEPS = 50_000
+
+
+def use_compile(config: RunConfig) -> bool:
+    """Compile when asked, or (auto) when the run is long enough to repay ~10-30 s of compilation."""
+    if config.compile == "auto":
+        return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast"
+    return config.compile == "on"
 
 
 def run_directories(out: Path, seeds: tuple[int, ...]) -> list[Path]:
@@ -113,9 +187,60 @@ def _check_writable(directory: Path) -> None:
         probe = directory / ".ilcsan-write-test"
         probe.write_bytes(b"0" * 65536)
         probe.unlink()
-    except OSError as error:
-        raise UserError(f"cannot write results to {directory}: {error.strerror or error}; "
-                        "choose another --out") from None
+    except (OSError, ValueError) as error:  # ValueError: a path with a NUL byte
+        message = getattr(error, "strerror", None) or error
+        raise UserError(f"cannot write results to {directory}: {message}; choose another --out") from None
+
+
+PENDING_CHECKPOINT = "checkpoint.next.pt"
+"""A seed's new checkpoint before every seed of the run has one (two-phase commit of multi-seed runs)."""
+
+
+def _lock_directory(directory: Path):
+    """Hold an exclusive lock on ``directory/.lock`` while training; a second process is refused. The
+    kernel drops the lock when the process dies, even by SIGKILL."""
+    try:
+        import fcntl
+    except ImportError:  # Windows: no lock
+        return None
+    stream = open(directory / ".lock", "a+")  # noqa: SIM115 - held for the trainer's lifetime
+    try:
+        fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        stream.close()
+        raise UserError(f"another ilcsan process is training in {directory}; wait for it to finish or stop it "
+                        "first (two processes writing one run would corrupt it)") from None
+    return stream
+
+
+def _remove_temporary_files(directory: Path) -> None:
+    """Delete the half-written temporary files an interrupted atomic write left (we hold the lock)."""
+    for folder in (directory, directory / "replay"):
+        if folder.is_dir():
+            for path in folder.glob(".*.tmp"):
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
+
+
+def _finish_commit(directories: list[Path]) -> None:
+    """Complete or undo a multi-seed checkpoint that a crash interrupted (see ``_write_checkpoints``).
+
+    Phase 1 writes every seed's ``checkpoint.next.pt``; phase 2 renames them to ``checkpoint.pt``. If a
+    seed still has only its old checkpoint while others have a pending one, phase 1 did not finish: the
+    pending files are dropped. Otherwise (every seed either pending or already renamed) phase 2 is
+    completed. So all seeds always resume from the same step."""
+    pending = [d for d in directories if (d / PENDING_CHECKPOINT).exists()]
+    if not pending:
+        return
+    step = safe_torch_load(pending[0] / PENDING_CHECKPOINT).get("step")
+    complete = all(d in pending or ((d / "checkpoint.pt").exists() and
+                                    safe_torch_load(d / "checkpoint.pt").get("step") == step)
+                   for d in directories)
+    for directory in pending:
+        if complete:
+            os.replace(directory / PENDING_CHECKPOINT, directory / "checkpoint.pt")
+        else:
+            os.remove(directory / PENDING_CHECKPOINT)
 
 
 # ------------------------------------------------------------------------------ ensemble slicing
@@ -164,6 +289,9 @@ def _load_optimizer(optimizer: torch.optim.Optimizer, module: torch.nn.Module,
                 entry[key] = value.clone()
             else:
                 entry[key] = torch.cat([per_seed[name][key] for per_seed in slices]).to(param.device)
+                if entry[key].shape != param.shape:
+                    raise UserError(f"the checkpoint's optimizer state {name!r} has shape {tuple(entry[key].shape)}, "
+                                    f"this run needs {tuple(param.shape)}: it belongs to another actor or task")
         optimizer.state[param] = entry
 
 
@@ -179,8 +307,16 @@ class Trainer:
         self.directories = run_directories(Path(out), config.seeds)
         if config.threads is not None:
             torch.set_num_threads(config.threads)
-        self._prepare_directories(resume)
+        self._locks: list = []
+        self.envs, self.eval_envs, self.writers = [], [], None
+        try:
+            self._prepare_directories(resume)
+            self._setup(config)
+        except BaseException:
+            self.close()
+            raise
 
+    def _setup(self, config: RunConfig) -> None:
         seeds = config.seeds
         self.envs = [make_env(config.task, seed) for seed in seeds]
         self.eval_envs = [make_env(config.task) for _ in seeds]
@@ -188,8 +324,9 @@ class Trainer:
         self.state_dim = int(env.observation_space.shape[0])
         self.action_dim = int(env.action_space.shape[0])
         self.action_scale, self.action_offset = action_bounds(env)
+        check_memory(config, self.state_dim, self.action_dim)
         self.agent = TD3Agent(config.actor, config.td3, self.state_dim, self.action_dim, self.action_scale,
-                              self.action_offset, seeds, config.device)
+                              self.action_offset, seeds, config.device, compile=use_compile(config))
         self.agent.actor.engine = config.engine
         self.agent.actor_target.engine = config.engine
         capacity = min(config.td3.replay_size, config.steps)
@@ -213,12 +350,19 @@ class Trainer:
 
     # ----------------------------------------------------------------------------- setup
     def _prepare_directories(self, resume: bool) -> None:
-        existing = [d for d in self.directories if (d / "checkpoint.pt").exists() or (d / "metrics.csv").exists()]
+        existing = [d for d in self.directories if any((d / name).exists() for name in
+                                                       ("checkpoint.pt", PENDING_CHECKPOINT, "metrics.csv"))]
         if existing and not resume:
             raise UserError(f"{existing[0]} already holds a run; add --resume to continue it, or choose "
                             "another --out")
         for directory in self.directories:
             _check_writable(directory)
+        for directory in self.directories:
+            self._locks.append(_lock_directory(directory))
+        for directory in self.directories:
+            _remove_temporary_files(directory)
+        if resume:
+            _finish_commit(self.directories)
         with_checkpoint = [d for d in self.directories if (d / "checkpoint.pt").exists()]
         if with_checkpoint and len(with_checkpoint) != len(self.directories):
             raise UserError("only some seeds of this run have a checkpoint; resume them one by one or "
@@ -249,11 +393,13 @@ class Trainer:
         self.normalizer.update(self.observations)
         self.episode_returns = np.zeros(len(self.envs))
 
-    def _check_finite(self, value, what: str, index: int) -> None:
-        if not np.all(np.isfinite(value)):
+    def _check_finite(self, value, what: str, index: int, where: str = "environment") -> None:
+        # beyond float32's range is as bad as inf: the replay buffer stores float32
+        if not np.all(np.abs(np.asarray(value, dtype=np.float64)) <= FLOAT32_MAX):
             raise TrainingDiverged(
-                f"step {self.step}: the environment returned a non-finite {what} for seed "
-                f"{self.config.seeds[index]} (NaN or inf); the run stopped and kept its last checkpoint")
+                f"step {self.step}: the {where} returned a non-finite {what} for seed "
+                f"{self.config.seeds[index]} (NaN, inf or beyond float32's range); the run stopped and kept "
+                "its last checkpoint")
 
     # -------------------------------------------------------------------------------- acting
     def _explore(self) -> np.ndarray:
@@ -324,6 +470,7 @@ class Trainer:
             episode = len(returns[index])
             seed = EVAL_SEED_OFFSET + config.seeds[index] * 10_007 + evaluation_index * 101 + episode
             observations[index] = self.eval_envs[index].reset(seed=seed)[0]
+            self._check_finite(observations[index], "observation", index, "evaluation environment")
             episode_return[index], episode_length[index] = 0.0, 0
 
         for index in range(count):
@@ -332,6 +479,8 @@ class Trainer:
             actions = self.agent.act(self.normalizer.normalize(observations[:, None, :])[:, 0])
             for index in np.flatnonzero(running):
                 observation, reward, terminated, truncated, _ = self.eval_envs[index].step(actions[index])
+                self._check_finite(observation, "observation", index, "evaluation environment")
+                self._check_finite(reward, "reward", index, "evaluation environment")
                 observations[index] = observation
                 episode_return[index] += reward
                 episode_length[index] += 1
@@ -346,9 +495,18 @@ class Trainer:
                  "eval_length_mean": float(np.mean(n))} for r, n in zip(returns, lengths, strict=True)]
 
     # ----------------------------------------------------------------------------- the loop
+    def train_step(self) -> dict[str, float] | None:
+        """One environment step per seed, and TD3's updates when they are due (TD3's pseudocode)."""
+        td3 = self.config.td3
+        self._env_step(self._explore())
+        self.step += 1
+        if self.step >= td3.update_after and self.step % td3.update_every == 0:
+            return self._learn()
+        return None
+
     def train(self) -> list[dict[str, Any]]:
         """Run TD3 until ``steps``; returns each seed's result. Interrupted runs resume from here."""
-        config, td3 = self.config, self.config.td3
+        config = self.config
         from tqdm import tqdm
 
         bar = tqdm(total=config.steps, initial=self.step, disable=not self.progress, unit="step",
@@ -357,11 +515,7 @@ class Trainer:
         losses: dict[str, float] = {}
         try:
             while self.step < config.steps:
-                actions = self._explore()
-                self._env_step(actions)
-                self.step += 1
-                if self.step >= td3.update_after and self.step % td3.update_every == 0:
-                    losses = self._learn()
+                losses = self.train_step() or losses
                 if self.step % config.eval_every == 0 or self.step == config.steps:
                     now = time.perf_counter()
                     self.wall_seconds += now - last_time
@@ -424,6 +578,19 @@ class Trainer:
             self.writers = None
         for env in self.envs + self.eval_envs:
             env.close()
+        for lock in self._locks:
+            if lock is not None:
+                lock.close()
+        self._locks = []
+
+    @contextlib.contextmanager
+    def _disk_errors(self, directory: Path):
+        """A full or failing disk while writing results: one clear line; the last checkpoint is kept."""
+        try:
+            yield
+        except OSError as error:
+            raise UserError(f"step {self.step}: cannot write to {directory}: {error.strerror or error}; the last "
+                            "checkpoint is kept: free some space, then continue with --resume") from None
 
     # ---------------------------------------------------------------------------- checkpoints
     def policy_state(self, index: int) -> dict[str, Any]:
@@ -442,7 +609,8 @@ class Trainer:
     def _write_policy(self, index: int, row: dict[str, float]) -> None:
         state = self.policy_state(index)
         state["eval_return_mean"] = row["eval_return_mean"]
-        atomic_torch_save(self.directories[index] / "policy.pt", state)
+        with self._disk_errors(self.directories[index]):
+            atomic_torch_save(self.directories[index] / "policy.pt", state)
 
     def _write_metrics(self, index: int) -> None:
         buffer = io.StringIO()
@@ -452,16 +620,26 @@ class Trainer:
         atomic_write_text(self.directories[index] / "metrics.csv", buffer.getvalue())
 
     def _write_checkpoints(self) -> None:
-        """Segments, metrics, result, then checkpoint.pt last: a crash anywhere keeps the previous one."""
+        """Segments, metrics, result, then checkpoint.pt last: a crash anywhere keeps the previous one.
+
+        With several seeds every new checkpoint is first written as ``checkpoint.next.pt``, then all are
+        renamed; a crash in between is completed or undone on resume (:func:`_finish_commit`), so the
+        seeds of a run always resume from the same step."""
         results = self.results()
+        target = PENDING_CHECKPOINT if len(self.directories) > 1 else "checkpoint.pt"
         for index, directory in enumerate(self.directories):
-            segment = self.replay.write_segment(directory, index, self.checkpointed_total)
-            if segment is not None:
-                self.segments[index].append(segment)
-            self._write_metrics(index)
-            atomic_write_json(directory / "result.json", {k: v for k, v in results[index].items()
-                                                          if k not in ("directory",)})
-            atomic_torch_save(directory / "checkpoint.pt", self._checkpoint_state(index))
+            with self._disk_errors(directory):
+                segment = self.replay.write_segment(directory, index, self.checkpointed_total)
+                if segment is not None:
+                    self.segments[index].append(segment)
+                self._write_metrics(index)
+                atomic_write_json(directory / "result.json", {k: v for k, v in results[index].items()
+                                                              if k not in ("directory",)})
+                atomic_torch_save(directory / target, self._checkpoint_state(index))
+        if target == PENDING_CHECKPOINT:
+            for directory in self.directories:
+                os.replace(directory / PENDING_CHECKPOINT, directory / "checkpoint.pt")
+        for index, directory in enumerate(self.directories):
             ReplayBuffer.prune_segments(directory, self.segments[index])
         self.checkpointed_total = self.replay.total
 
@@ -494,6 +672,16 @@ class Trainer:
         }
 
     def _load_checkpoints(self) -> None:
+        try:
+            self._restore_checkpoints()
+        except UserError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError, RuntimeError) as error:
+            raise UserError(f"the checkpoint in {self.directories[0] if len(self.directories) == 1 else 'a seed'} "
+                            f"is incomplete or from another version of ilcsan ({type(error).__name__}: "
+                            f"{str(error)[:120]}); start again without --resume, or choose another --out") from None
+
+    def _restore_checkpoints(self) -> None:
         states = [safe_torch_load(d / "checkpoint.pt") for d in self.directories]
         for directory, state in zip(self.directories, states, strict=True):
             if state.get("format") != CHECKPOINT_FORMAT or state.get("version") != FORMAT_VERSION:
