@@ -1,0 +1,241 @@
+"""The additions-only runtime: numpy only, equal to the PyTorch actor for every fully spiking switch, and
+its synaptic-operation count equal to the energy model's."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from spiking_policies import HAND_SOP, hand_made_policy, observations, random_policy
+
+import ilcsan.deploy
+from ilcsan.deploy import DeployedActor
+from ilcsan.energy import energy_report, measure_firing_rates
+from ilcsan.errors import UserError
+from ilcsan.export import bundle_arrays, bundle_meta, export_npz
+from ilcsan.intra import INTRA_VARIANTS
+
+DEPLOY_FILE = Path(ilcsan.deploy.__file__)
+TOLERANCE = 1e-4
+
+FULLY_SPIKING = [
+    ("ilc-san", {}),
+    *[("ilc-san", {"intra": variant}) for variant in INTRA_VARIANTS if variant != "intra"],
+    *[("ilc-san", {"decoder": decoder, "alpha_v_li": alpha}) for decoder in ("last", "max", "mean")
+      for alpha in (1.0, 0.75, 0.5) if (decoder, alpha) != ("last", 1.0)],
+    ("ilc-san", {"hidden": (64,)}),
+    ("ilc-san", {"hidden": (64, 48, 40)}),
+    ("ilc-san", {"hidden": (40, 40, 40, 40)}),
+    ("ilc-san", {"neuron": "dynamic"}),
+    ("ilc-san", {"neuron": "dynamic", "intra": "self+bias", "decoder": "max", "alpha_v_li": 0.75}),
+    ("ilc-san", {"population_in": 5, "population_out": 7, "timesteps": 8}),
+    ("ilc-san", {"timesteps": 2}),
+    ("popsan", {"decoder": "last"}),  # PopSAN's backbone with the membrane-voltage decoder
+]
+
+
+def ids(case) -> str:
+    preset, overrides = case
+    return preset + "".join(f"-{key}={value}" for key, value in overrides.items())
+
+
+def deployed(policy) -> DeployedActor:
+    return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
+
+
+# --------------------------------------------------------------------------------- equality
+@pytest.mark.parametrize("case", FULLY_SPIKING, ids=ids)
+def test_runtime_equals_pytorch_and_counts_the_energy_models_sop(case):
+    preset, overrides = case
+    policy = random_policy(preset, **overrides)
+    batch = observations(policy, 12)
+    runtime = deployed(policy)
+    actions = np.stack([runtime.act(row) for row in batch])
+    expected = policy.predict(batch)
+    assert np.abs(actions - expected).max() < TOLERANCE
+    rates = measure_firing_rates(policy, batch)  # spiking is non-trivial in every layer
+    assert all(0.02 < rate < 0.98 for rate in rates.rates.values()), rates.rates
+    report = energy_report(policy, rates)
+    assert runtime.inferences == len(batch)
+    for layer in report.layers:
+        assert runtime.total_sop_by_layer[layer.name] / len(batch) == pytest.approx(layer.sop, rel=1e-12, abs=1e-9)
+    assert runtime.total_sop / len(batch) == pytest.approx(report.total_sop, rel=1e-12)
+
+
+def test_one_timestep_has_no_intra_step():
+    policy = random_policy(timesteps=1, bias_shift=0.6)
+    batch = observations(policy, 8)
+    runtime = deployed(policy)
+    assert np.abs(runtime.act(batch) - policy.predict(batch)).max() < TOLERANCE
+    assert runtime.total_sop_by_layer["Intra FC"] == 0 < runtime.total_sop_by_layer["FC2"]
+
+
+def test_ant_sized_actor_and_batches():
+    policy = random_policy(state_dim=111, action_dim=8)
+    batch = observations(policy, 6)
+    runtime = deployed(policy)
+    assert np.abs(runtime.act(batch) - policy.predict(batch)).max() < TOLERANCE
+    single = runtime.act(batch[0])
+    assert single.shape == (8,) and single.dtype == np.float32
+    assert runtime.last_sop == sum(runtime.last_sop_by_layer.values()) > 0
+
+
+def test_spike_trains_equal_the_actors():
+    policy = random_policy(hidden=(48, 32))
+    observation = observations(policy, 1)[0]
+    output = policy.run(observation)
+    trains = deployed(policy).spike_trains(observation)
+    expected = [inputs[0, :, 0].numpy() for inputs in output.layer_inputs] + [output.output_spikes[0, :, 0].numpy()]
+    assert len(trains) == len(expected) == 4
+    for ours, theirs in zip(trains, expected, strict=True):
+        np.testing.assert_array_equal(ours, theirs.astype(bool))
+
+
+def test_hand_made_actor_sop_per_layer():
+    policy = hand_made_policy()
+    meta = dict(bundle_meta(policy), intra="intra")  # its intra weights are all 0: name the mask
+    runtime = DeployedActor.from_arrays(bundle_arrays(policy), meta)
+    runtime.act(np.array([0.3, -0.2, 1.0]))
+    assert runtime.last_sop_by_layer == {"FC1": 30, "FC2": 18, "Intra FC": 14, "Group FC": 9} == HAND_SOP
+    assert runtime.last_sop == 71
+    runtime.act(np.zeros(3))
+    assert runtime.total_sop == 142 and runtime.inferences == 2
+    inferred = deployed(policy)  # without the name, all-zero weights are no synapses at all
+    inferred.act(np.zeros(3))
+    assert inferred.last_sop_by_layer["Intra FC"] == 0 and inferred.last_sop == 57
+
+
+def test_bundle_file_round_trip(tmp_path):
+    policy = random_policy()
+    path = export_npz(policy, tmp_path / "actor.npz")
+    runtime = DeployedActor.load(path)
+    batch = observations(policy, 5)
+    assert np.abs(runtime.act(batch) - policy.predict(batch)).max() < TOLERANCE
+    with np.load(path, allow_pickle=False) as bundle:
+        assert all(bundle[name].dtype == np.float32 for name in bundle.files if name != "meta")
+
+
+# ------------------------------------------------------------------------------- no PyTorch
+def _fresh_python(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+
+
+def test_standalone_file_runs_a_bundle_without_torch(tmp_path):
+    policy = random_policy()
+    path = export_npz(policy, tmp_path / "actor.npz")
+    observation = observations(policy, 1)[0]
+    code = f"""
+import importlib.util, json, sys
+spec = importlib.util.spec_from_file_location("deploy_copy", {str(DEPLOY_FILE)!r})
+module = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = module
+spec.loader.exec_module(module)
+actor = module.DeployedActor.load({str(path)!r})
+action = actor.act({observation.tolist()!r})
+print(json.dumps({{"torch": "torch" in sys.modules, "action": action.tolist(), "sop": actor.last_sop}}))
+"""
+    result = _fresh_python(code)
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["torch"] is False
+    assert np.abs(np.array(data["action"]) - policy.predict(observation)).max() < TOLERANCE
+    assert data["sop"] > 0
+
+
+def test_package_import_without_torch():
+    """``import ilcsan.deploy`` must not import torch; needs a lazy ``ilcsan/__init__.py`` (see deploy docs)."""
+    package_alone = _fresh_python("import sys, ilcsan; print('torch' in sys.modules)")
+    assert package_alone.returncode == 0, package_alone.stderr
+    if package_alone.stdout.strip() == "True":
+        pytest.xfail("ilcsan/__init__.py imports torch (via config); the deploy module itself does not")
+    result = _fresh_python("import sys, ilcsan.deploy; print('torch' in sys.modules)")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "False"
+
+
+def test_deploy_module_imports_numpy_only():
+    source = DEPLOY_FILE.read_text()
+    imports = [line.split()[1] for line in source.splitlines() if line.startswith(("import ", "from "))]
+    assert "torch" not in " ".join(imports)
+    assert set(imports) <= {"__future__", "json", "math", "collections.abc", "dataclasses", "pathlib", "typing",
+                            "numpy"}
+
+
+# ----------------------------------------------------------------------------------- refusals
+@pytest.mark.parametrize(("preset", "overrides", "message"), [
+    ("ilc-san", {"encoder": "pop-prob"}, "pop-prob"),
+    ("ilc-san", {"encoder": "pop"}, "not fully spiking"),
+    ("akl", {}, "not fully spiking"),
+    ("popsan", {}, "not fully spiking"),
+    ("mdc-san", {}, "not fully spiking"),
+    ("dan", {}, "DAN"),
+])
+def test_refuses_actors_that_are_not_fully_spiking(preset, overrides, message):
+    policy = random_policy(preset, **overrides)
+    with pytest.raises(UserError, match=message):
+        DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
+
+
+def _saved(tmp_path, arrays, meta) -> Path:
+    path = tmp_path / "bundle.npz"
+    np.savez(path, meta=np.array(json.dumps(meta)), **arrays)
+    return path
+
+
+def test_load_errors(tmp_path):
+    policy = random_policy(hidden=(16, 16))
+    arrays, meta = bundle_arrays(policy), bundle_meta(policy)
+    with pytest.raises(UserError, match="does not exist"):
+        DeployedActor.load(tmp_path / "missing.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip file")
+    with pytest.raises(UserError, match="not a readable"):
+        DeployedActor.load(tmp_path / "junk.npz")
+    np.savez(tmp_path / "nometa.npz", **arrays)
+    with pytest.raises(UserError, match="no 'meta'"):
+        DeployedActor.load(tmp_path / "nometa.npz")
+    broken = {name: value for name, value in arrays.items() if name != "layers.1.bias"}
+    with pytest.raises(UserError, match="layers.1.bias"):
+        DeployedActor.load(_saved(tmp_path, broken, meta))
+    misshaped = dict(arrays, **{"decoder.weight": np.zeros((3, 9), np.float32)})
+    with pytest.raises(UserError, match=r"decoder.weight.*\(3, 9\)"):
+        DeployedActor.load(_saved(tmp_path, misshaped, meta))
+    with pytest.raises(UserError, match="NaN"):
+        DeployedActor.from_arrays(dict(arrays, **{"layers.0.bias": np.full(16, np.nan, np.float32)}), meta)
+    np.savez(tmp_path / "badjson.npz", meta=np.array("{not json"), **arrays)
+    with pytest.raises(UserError, match="JSON"):
+        DeployedActor.load(tmp_path / "badjson.npz")
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"T": "five"}, "'T'"), ({"T": 0}, "'T'"), ({"obs_std": [-1.0] * 11}, "obs_std"),
+    ({"action_offset": [0.0]}, "action_offset"), ({"v_reset": 0.5}, "reset"), ({"neuron": "izhikevich"}, "neuron"),
+    ({"intra": "sideways"}, "intra"), ({"statistic": "median"}, "statistic|fully spiking"),
+])
+def test_bad_meta(change, message):
+    policy = random_policy(hidden=(16, 16))
+    meta = dict(bundle_meta(policy), **change)
+    with pytest.raises(UserError, match=message):
+        DeployedActor.from_arrays(bundle_arrays(policy), meta)
+    meta = {key: value for key, value in bundle_meta(policy).items() if key != "obs_clip"}
+    with pytest.raises(UserError, match="obs_clip"):
+        DeployedActor.from_arrays(bundle_arrays(policy), meta)
+
+
+def test_bad_observations():
+    runtime = deployed(random_policy(hidden=(16, 16)))
+    for bad in (np.zeros(10), np.zeros((2, 3, 11)), [np.nan] * 11, "eleven"):
+        with pytest.raises(UserError):
+            runtime.act(bad)
+
+
+def test_intra_mask_from_meta_equals_mask_from_weights():
+    policy = random_policy(intra="lateral+bias")
+    arrays, meta = bundle_arrays(policy), bundle_meta(policy)
+    inferred = DeployedActor.from_arrays(arrays, meta)
+    named = DeployedActor.from_arrays(arrays, dict(meta, intra="lateral+bias"))
+    assert inferred.intra.fan_out == named.intra.fan_out == 9
+    np.testing.assert_array_equal(inferred.intra.targets, named.intra.targets)
