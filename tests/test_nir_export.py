@@ -1,0 +1,156 @@
+"""NIR export: CubaLIF parameters reproduce CLIF, and a written graph read back with ``nir.read`` and run by
+``simulate_nir`` with the host parts gives the actor's actions."""
+
+from __future__ import annotations
+
+import nir
+import numpy as np
+import pytest
+from spiking_policies import observations, random_policy
+
+from ilcsan.errors import UserError
+from ilcsan.nir_export import (
+    build_graph,
+    cubalif_parameters,
+    export_nir,
+    host_decode,
+    host_encode,
+    nir_action,
+    read_host,
+    simulate_nir,
+)
+
+ROUND_TRIP_TOLERANCE = 1e-5
+
+
+def test_cubalif_parameters_of_the_paper():
+    params = cubalif_parameters(0.5, 0.75, 0.5, 3)
+    expected = {"tau_syn": 2.0, "w_in": 2.0, "tau_mem": 4.0, "r": 4.0, "v_leak": 0.0, "v_reset": 0.0,
+                "v_threshold": 0.5}
+    for name, value in expected.items():
+        np.testing.assert_array_equal(params[name], np.full(3, value, np.float32))
+    with pytest.raises(UserError, match="finite"):
+        cubalif_parameters(0.5, 1.0, 0.5, 3)
+
+
+def test_cubalif_euler_step_is_clif():
+    """Input → identity Affine → CubaLIF: the interpreter's spikes equal Algorithm 1's CLIF on any currents."""
+    rng = np.random.default_rng(0)
+    currents = rng.normal(0.3, 0.6, (12, 50)).astype(np.float32)
+    for alpha_c, alpha_v in ((0.5, 0.75), (0.25, 0.5), (0.0, 0.0)):
+        graph = nir.NIRGraph(nodes={
+            "input": nir.Input(input_type=np.array([50])),
+            "affine": nir.Affine(weight=np.eye(50, dtype=np.float32), bias=np.zeros(50, np.float32)),
+            "lif": nir.CubaLIF(**cubalif_parameters(alpha_c, alpha_v, 0.5, 50)),
+            "output": nir.Output(output_type=np.array([50])),
+        }, edges=[("input", "affine"), ("affine", "lif"), ("lif", "output")])
+        simulated = simulate_nir(graph, currents)["output"]
+        current, voltage, spikes = np.zeros(50, np.float32), np.zeros(50, np.float32), []
+        for t in range(len(currents)):
+            current = np.float32(alpha_c) * current + currents[t]
+            voltage = np.float32(alpha_v) * voltage + current
+            fired = voltage >= 0.5
+            voltage = np.where(fired, 0, voltage).astype(np.float32)
+            spikes.append(fired)
+        np.testing.assert_array_equal(simulated, np.array(spikes, np.float32))
+        assert 0.1 < simulated.mean() < 0.9
+
+
+ROUND_TRIPS = [
+    {}, {"intra": "self"}, {"intra": "lateral+bias"}, {"intra": "bias"}, {"intra": "none"},
+    {"decoder": "max", "alpha_v_li": 0.5}, {"decoder": "mean", "alpha_v_li": 0.75}, {"hidden": (48,)},
+    {"hidden": (40, 32, 24)}, {"timesteps": 8, "population_out": 7},
+    {"encoder": "pop"}, {"encoder": "layer", "intra": "self+bias"}, {"decoder": "fr", "intra": "none"},
+]
+
+
+def case_id(overrides: dict) -> str:
+    return "-".join(f"{key}={value}" for key, value in overrides.items()) or "ilc-san"
+
+
+@pytest.mark.parametrize("overrides", ROUND_TRIPS, ids=case_id)
+def test_round_trip_matches_the_actor(tmp_path, overrides):
+    policy = random_policy(**overrides)
+    path = export_nir(policy, tmp_path / "actor.nir")
+    graph = nir.read(path)
+    batch = observations(policy, 10)
+    actions = np.stack([nir_action(graph, observation) for observation in batch])
+    error = float(np.abs(actions - policy.predict(batch)).max())
+    assert error < ROUND_TRIP_TOLERANCE, error
+    spikes = simulate_nir(graph, host_encode(read_host(graph), batch[0]))
+    assert set(spikes) == {"output"}
+
+
+def test_graph_layout(tmp_path):
+    policy = random_policy(hidden=(32, 24))
+    graph = nir.read(export_nir(policy, tmp_path / "actor.nir"))
+    types = {name: type(node).__name__ for name, node in graph.nodes.items()}
+    assert types == {"input": "Input", "fc1": "Affine", "lif1": "CubaLIF", "fc2": "Affine", "lif2": "CubaLIF",
+                     "fc3": "Affine", "lif3": "CubaLIF", "intra": "Linear", "decoder": "Affine", "li": "I",
+                     "output": "Output"}
+    edges = {tuple(edge) for edge in graph.edges}
+    assert {("lif3", "intra"), ("intra", "lif3"), ("lif3", "decoder"), ("decoder", "li")} <= edges
+    # the output population (30) plus the clock neuron that delivers b_intra from t = 2 on
+    assert graph.nodes["lif3"].v_threshold.shape == (31,)
+    intra = graph.nodes["intra"].weight
+    assert intra.shape == (31, 31) and not intra[:10, 10:30].any() and not intra[30].any()
+    np.testing.assert_allclose(intra[:30, 30], policy.actor.intra.masked_bias()[0].detach().reshape(-1).numpy())
+    assert not graph.nodes["decoder"].weight[:, 30].any()
+    assert graph.metadata["format"] == "ilcsan-nir/1" and graph.metadata["encoder_mu"].shape == (11, 10)
+    host = read_host(graph)
+    assert host["clock_neuron"] and host["timesteps"] == 5 and host["statistic"] == "last"
+
+
+def test_clock_neuron_delivers_the_intra_bias_from_step_two(tmp_path):
+    """Without the clock, b_intra is missing; added at t = 1 too (a recurrent Affine) the actions differ."""
+    policy = random_policy(intra="bias", gain=1.5, bias_shift=0.0)
+    policy.actor.intra.bias.data.mul_(5.0)
+    graph = build_graph(policy)
+    host = read_host(graph)
+    batch = observations(policy, 8)
+
+    def actions(g):
+        return np.stack([host_decode(host, simulate_nir(g, host_encode(host, obs))["output"]) for obs in batch])
+
+    expected = policy.predict(batch)
+    assert np.abs(actions(graph) - expected).max() < ROUND_TRIP_TOLERANCE
+    no_clock = build_graph(policy)
+    no_clock.nodes["intra"].weight[:, -1] = 0.0
+    assert np.abs(actions(no_clock) - expected).max() > 1e-3
+    at_step_one = build_graph(policy)
+    bias = at_step_one.nodes["intra"].weight[:-1, -1].copy()
+    at_step_one.nodes["fc3"].bias[:-1] += bias  # b_intra at every step, t = 1 included
+    at_step_one.nodes["intra"].weight[:, -1] = 0.0
+    assert np.abs(actions(at_step_one) - expected).max() > 1e-3
+
+
+def test_leaky_decoder_is_nir_li(tmp_path):
+    graph = build_graph(random_policy(decoder="mean", alpha_v_li=0.75))
+    li = graph.nodes["li"]
+    assert isinstance(li, nir.LI)
+    np.testing.assert_array_equal(li.tau, np.full(3, 4.0, np.float32))
+    np.testing.assert_array_equal(li.r, np.full(3, 4.0, np.float32))
+
+
+def test_export_refusals(tmp_path):
+    for preset, overrides, message in (("dan", {}, "DAN"), ("mdc-san", {}, "dynamic"),
+                                       ("ilc-san", {"alpha_v": 1.0}, "finite")):
+        with pytest.raises(UserError, match=message):
+            export_nir(random_policy(preset, **overrides), tmp_path / "x.nir")
+    assert not (tmp_path / "x.nir").exists()
+    foreign = nir.NIRGraph(nodes={"input": nir.Input(input_type=np.array([2])),
+                                  "output": nir.Output(output_type=np.array([2]))}, edges=[("input", "output")])
+    with pytest.raises(UserError, match="host metadata"):
+        read_host(foreign)
+    np.testing.assert_array_equal(simulate_nir(foreign, np.ones((3, 2)))["output"], np.ones((3, 2)))
+
+
+def test_export_command_writes_nir_for_a_trained_run(trained_run, tmp_path):
+    from ilcsan import load
+    from ilcsan.export import export
+
+    path = export(trained_run, "nir", tmp_path / "pendulum.nir")
+    graph = nir.read(path)
+    policy = load(trained_run)
+    observation = np.array([0.3, -0.9, 0.5])
+    assert np.abs(nir_action(graph, observation) - policy.predict(observation)).max() < ROUND_TRIP_TOLERANCE
