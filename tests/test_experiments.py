@@ -1,0 +1,373 @@
+"""`ilcsan reproduce`: grids expand into runs, run locally or on Ray, survive interruption, end in a report."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from ilcsan import experiments
+from ilcsan.cli import main
+from ilcsan.errors import UserError
+from ilcsan.experiments import (
+    GridOptions,
+    Job,
+    RunState,
+    balance_jobs,
+    estimate_hours,
+    expand_grid,
+    format_duration,
+    format_seeds,
+    group_jobs,
+    list_tables,
+    run_grid,
+    run_state,
+)
+from ilcsan.grids import TABLES, load_grid
+from ilcsan.training import Trainer, train
+
+TINY_TD3 = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
+TINY_GRID = """
+name = "tiny"
+caption = "Two small actors on two small tasks"
+tasks = ["Pendulum-v1", "InvertedPendulum-v4"]
+seeds = 2
+steps = 300
+eval_every = 150
+eval_episodes = 1
+
+[[rows]]
+slug = "ilc"
+label = "ILC-SAN 16"
+preset = "ilc-san"
+overrides = { hidden_width = 16 }
+
+[[rows]]
+slug = "pop"
+label = "PopSAN 16"
+preset = "popsan"
+overrides = { hidden_width = 16 }
+"""
+QUIET = dict(log=lambda *_: None)
+
+
+def grid_file(tmp_path: Path) -> Path:
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY_GRID)
+    return path
+
+
+def tiny_grid(tmp_path: Path, **options):
+    spec = load_grid(grid_file(tmp_path))
+    return expand_grid(spec, tmp_path / "out", GridOptions(td3=TINY_TD3, **options))
+
+
+def metrics(path: Path) -> list[dict[str, str]]:
+    with open(path / "metrics.csv") as stream:
+        return list(csv.DictReader(stream))
+
+
+def snapshot(directory: Path) -> dict[str, tuple[int, bytes]]:
+    """mtime and bytes of the files that a finished run must never see rewritten."""
+    return {name: ((directory / name).stat().st_mtime_ns, (directory / name).read_bytes())
+            for name in ("result.json", "metrics.csv", "checkpoint.pt", "policy.pt", "config.json")}
+
+
+def crash_after_first_checkpoint(monkeypatch) -> None:
+    original = Trainer._write_checkpoints
+
+    def write_then_stop(self):
+        original(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "_write_checkpoints", write_then_stop)
+
+
+# ------------------------------------------------------------------------------------------------
+# Expanding a table into runs
+
+
+def test_paper_table_expands_into_tagged_runs(tmp_path):
+    grid = expand_grid(TABLES["intra"], tmp_path, GridOptions(seeds=(0, 2), tasks=("hopper", "Ant"),
+                                                             rows=("self", "intra"), steps=5000,
+                                                             td3={"start_steps": 100}))
+    assert [run.key for run in grid.runs][:4] == ["Hopper/self/seed0", "Hopper/self/seed2", "Hopper/intra/seed0",
+                                                  "Hopper/intra/seed2"]
+    assert len(grid.runs) == 2 * 2 * 2 and grid.total_steps == 8 * 5000
+    run = grid.runs[0]
+    assert run.directory == tmp_path.absolute() / "intra" / "Hopper" / "self" / "seed0"
+    assert (run.config.table, run.config.row, run.config.label) == ("intra", "self", "I_self")
+    assert run.config.seeds == (0,) and run.config.threads == 1 and run.config.actor.intra == "self"
+    assert run.config.td3.start_steps == 100 and run.config.steps == 5000
+    assert run.config.eval_every == 10_000 and run.config.eval_episodes == 10  # the paper's protocol
+    assert grid.report_table == TABLES["intra"] or grid.report_table == "intra"
+
+
+def test_rows_without_code_are_left_out_and_refused_by_name(tmp_path):
+    grid = expand_grid(TABLES["perf"], tmp_path, GridOptions(seeds=(0,), tasks=("Hopper",)))
+    assert "ac-bcq" not in {run.row.slug for run in grid.runs} and len(grid.runs) == 7
+    with pytest.raises(UserError, match="paper's numbers only"):
+        expand_grid(TABLES["perf"], tmp_path, GridOptions(rows=("ac-bcq",)))
+
+
+@pytest.mark.parametrize("options, message", [
+    (GridOptions(tasks=("Pong",)), "no task 'Pong'"),
+    (GridOptions(rows=("nope",)), "no row 'nope'"),
+    (GridOptions(td3={"warmup": 3}), "unknown TD3 setting"),
+])
+def test_bad_options_are_one_sentence(tmp_path, options, message):
+    with pytest.raises(UserError, match=message):
+        expand_grid(TABLES["intra"], tmp_path, options)
+
+
+def test_jobs_group_seeds_of_a_cell_by_checkpoint_step(tmp_path):
+    grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",))
+    states = {run.key: RunState("new") for run in grid.runs}
+    states["Pendulum-v1/ilc/seed0"] = RunState("partial", 150)
+    states["Pendulum-v1/pop/seed1"] = RunState("finished", 300)
+    jobs = group_jobs(grid, states)
+    assert sorted((job.row, job.seeds, job.start_step) for job in jobs) == [
+        ("ilc", (0,), 150), ("ilc", (1,), 0), ("pop", (0,), 0)]
+    several = next(job for job in group_jobs(grid, {run.key: RunState("new") for run in grid.runs}))
+    assert several.out == several.cell and several.directories == [several.cell / "seed0", several.cell / "seed1"]
+    single = next(job for job in jobs if job.seeds == (0,) and job.row == "ilc")
+    assert single.out == single.cell / "seed0" and single.steps_left == 150
+
+
+def test_jobs_are_split_to_fill_the_slots_and_to_fit_in_memory(tmp_path):
+    grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=tuple(range(10)))
+    (job,) = group_jobs(grid, {run.key: RunState("new") for run in grid.runs})
+    assert len(job.seeds) == 10
+    assert [len(j.seeds) for j in balance_jobs([job], slots=1)] == [10]
+    assert sorted(len(j.seeds) for j in balance_jobs([job], slots=4)) == [2, 2, 3, 3]
+    assert [len(j.seeds) for j in balance_jobs([job], slots=1, max_seeds=4)] == [4, 3, 3]
+    parts = balance_jobs([job], slots=3)
+    assert sorted(seed for j in parts for seed in j.seeds) == list(range(10))
+    assert len({j.log_file for j in parts}) == len(parts)
+
+
+def test_small_helpers():
+    assert format_seeds((0, 1, 2, 5, 7, 8)) == "0-2,5,7-8" and format_seeds((3,)) == "3"
+    assert format_duration(42) == "42s" and format_duration(3725) == "1h 02m"
+    assert format_duration(200_000) == "2d 07h"
+
+
+def test_estimate_hours_runs_in_waves_of_cores():
+    # intra: 4 tasks x 8 rows x 10 seeds = 320 runs of 1e6 steps; at 100 steps/s a run takes 1e4 s
+    assert estimate_hours("intra", 100.0, 2) == pytest.approx(160 * 1e4 / 3600)
+    assert estimate_hours("intra", 100.0, 320) == pytest.approx(1e4 / 3600)
+    assert estimate_hours("intra", 100.0, 1000) == pytest.approx(1e4 / 3600), "idle cores do not help"
+    assert estimate_hours(TABLES["perf"], 200.0, 64) == pytest.approx(9 * 5000 / 3600)  # 560 runs: 9 waves
+
+
+# ------------------------------------------------------------------------------------------------
+# Running locally, interrupted, resumed, reported
+
+
+def test_grid_runs_locally_survives_an_interruption_and_reports(tmp_path, monkeypatch):
+    grid = tiny_grid(tmp_path)
+    partial = next(run for run in grid.runs if run.key == "Pendulum-v1/ilc/seed0")
+    crash_after_first_checkpoint(monkeypatch)  # seed 0 of one cell stops at its first checkpoint (step 150)
+    with pytest.raises(KeyboardInterrupt):
+        train(partial.config, partial.directory, progress=False, **QUIET)
+    monkeypatch.undo()
+    assert run_state(partial.directory, partial.config) == RunState("partial", 150)
+    first_row = metrics(partial.directory)[0]
+
+    lines: list[str] = []
+    events: list[tuple[str, Job]] = []
+
+    def stop_after_first_finish(kind, job):
+        events.append((kind, job))
+        if kind == "finish":
+            raise KeyboardInterrupt  # as Ctrl-C: the other running job is stopped at its last checkpoint
+
+    summary = run_grid(grid, "local", workers=2, log=lines.append, on_event=stop_after_first_finish,
+                       poll_seconds=0.2)
+    assert summary.interrupted and summary.report is None
+    assert any("resume Pendulum-v1/ilc seed@step 0@150" in line for line in lines)
+    assert any("interrupted" in line for line in lines)
+    finished = [run for run in grid.runs if run_state(run.directory, run.config).status == "finished"]
+    assert 2 <= len(finished) < len(grid.runs)
+    before = {run.key: snapshot(run.directory) for run in finished}
+
+    lines.clear()
+    summary = run_grid(grid, "local", workers=2, log=lines.append, poll_seconds=0.2)
+    assert not summary.interrupted and not summary.failed
+    assert summary.skipped == len(finished) and summary.finished == len(grid.runs) - len(finished)
+    assert {run.key: snapshot(run.directory) for run in finished} == before, "finished runs are never rewritten"
+    assert sum("skip" in line for line in lines) >= 1 and any("ETA" in line for line in lines)
+    for run in grid.runs:
+        result = json.loads((run.directory / "result.json").read_text())
+        assert result["finished"] and result["steps_done"] == 300
+        assert [row["step"] for row in metrics(run.directory)] == ["150", "300"], "no evaluation lost or doubled"
+        config = json.loads((run.directory / "config.json").read_text())
+        assert (config["table"], config["row"], config["label"]) == ("tiny", run.row.slug, run.row.label)
+
+    # the resumed run kept its first evaluation and continued exactly as an uninterrupted run
+    assert metrics(partial.directory)[0] == first_row
+    log = (grid.root / "logs" / "Pendulum-v1--ilc--s0.log").read_text()
+    assert "resumed" in log and "at step 150" in log
+    train(partial.config, tmp_path / "straight", progress=False, **QUIET)
+    assert [row["eval_return_mean"] for row in metrics(partial.directory)] == \
+        [row["eval_return_mean"] for row in metrics(tmp_path / "straight")]
+
+    report = summary.report
+    assert report is not None and report["curves"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    markdown = report["markdown"].read_text()
+    assert "ILC-SAN 16" in markdown and "PopSAN 16" in markdown and "(n=2)" in markdown
+    assert "InvertedPendulum-v4" in markdown
+
+    lines.clear()
+    again = run_grid(grid, "local", workers=2, log=lines.append, write_report=False)
+    assert again.skipped == len(grid.runs) and again.finished == 0
+    assert any("nothing to train" in line for line in lines)
+
+
+def test_a_run_made_with_other_settings_stops_the_grid_before_it_starts(tmp_path):
+    grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=(0,), steps=150)
+    run = grid.runs[0]
+    train(dataclasses.replace(run.config, steps=150), run.directory, progress=False, **QUIET)
+    other = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=(0,), steps=300)
+    with pytest.raises(UserError, match=r"other settings \(steps\)"):
+        run_grid(other, "local", workers=1, **QUIET)
+
+
+class FlakyBackend:
+    """Runs jobs in this process; the first attempt of every job 'dies', and one row's jobs always fail."""
+
+    slots = 2
+
+    def __init__(self, failing_row: str):
+        self.failing_row, self.attempts, self.jobs = failing_row, {}, {}
+
+    def describe(self) -> str:
+        return "flaky test backend"
+
+    def submit(self, job):
+        handle = len(self.jobs)
+        self.jobs[handle] = job
+        self.attempts[job] = self.attempts.get(job, 0) + 1
+        return handle
+
+    def wait(self, handles, timeout):
+        return list(handles)
+
+    def outcome(self, handle):
+        job = self.jobs[handle]
+        if self.attempts[job] == 1:
+            return experiments.JobOutcome(error="the worker process died", crashed=True)
+        if job.row == self.failing_row:
+            return experiments.JobOutcome(error="step 150: non-finite reward", diverged=True)
+        return experiments.run_job(job)
+
+    def interrupt(self, handles):
+        pass
+
+    def close(self):
+        pass
+
+
+def test_a_dead_worker_is_retried_and_a_failed_job_is_reported(tmp_path):
+    grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",), seeds=(0,), steps=150)
+    lines: list[str] = []
+    summary = run_grid(grid, FlakyBackend(failing_row="pop"), log=lines.append, write_report=False)
+    assert sum("[retry]" in line for line in lines) == 2
+    assert summary.finished == 1 and summary.diverged
+    assert summary.failed == (("Pendulum-v1/pop seed 0", "step 150: non-finite reward"),)
+    assert any(line.startswith("[FAIL ] Pendulum-v1/pop") for line in lines)
+
+
+# ------------------------------------------------------------------------------------------------
+# Ray
+
+
+def test_grid_runs_on_a_local_ray_bound_to_loopback(tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'ilcsan[ray]'); CI installs it")
+    grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",))
+    backend = experiments.RayBackend(workers=2)
+    assert experiments.ray_node_address() == "127.0.0.1", "a Ray we start listens on the loopback only"
+    assert backend.slots == 2
+    lines: list[str] = []
+    summary = run_grid(grid, backend, log=lines.append, poll_seconds=0.2)
+    assert not summary.failed and summary.finished == len(grid.runs) == 4
+    assert any("ray backend" in line for line in lines)
+    for run in grid.runs:
+        assert json.loads((run.directory / "result.json").read_text())["finished"]
+    assert summary.report is not None and summary.report["curves"].is_file()
+
+
+# ------------------------------------------------------------------------------------------------
+# The command line
+
+
+def run_cli(capsys, *argv: str):
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
+    lines = [line for line in err.strip().splitlines() if line]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def test_list_shows_every_table_its_rows_protocol_runs_and_estimate(capsys):
+    code, out, _ = run_cli(capsys, "reproduce", "--list")
+    assert code == 0
+    for spec in TABLES.values():
+        assert f"{spec.name}: {spec.caption}" in out
+    assert "Ant, HalfCheetah, Hopper, Walker2d" in out
+    assert "self+lateral" in out and "preset=ilc-san intra=self" in out and "preset=popsan" in out
+    assert "protocol: 10 seeds × 1,000,000 steps" in out
+    assert "4 tasks × 8 rows × 10 seeds = 320" in out and "8 tasks × 7 rows × 10 seeds = 560" in out
+    assert "the paper's numbers only" in out and "estimate:" in out and "64 cores" in out
+
+
+def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "300")
+    code, out, _ = run_cli(capsys, "reproduce", str(grid_file(tmp_path)), "--list")
+    assert code == 0 and out.startswith("tiny: Two small actors") and "300 steps/s" in out
+    assert "2 tasks × 2 rows × 2 seeds = 8" in out
+    assert list_tables([TABLES["layer"]], 100.0, 2).count("estimate:") == 1
+
+
+@pytest.mark.parametrize("argv, fragments", [
+    (("reproduce", "tabel"), ("no table 'tabel'", "perf")),
+    (("reproduce",), ("name a table",)),
+    (("reproduce", "intra", "--tasks", "Pong"), ("no task 'Pong'",)),
+    (("reproduce", "intra", "--seeds", "3-1"), ("--seeds",)),
+    (("reproduce", "intra", "--backend", "slurm"), ("--backend 'slurm'",)),
+    (("reproduce", "intra", "--address", "10.0.0.1:6379"), ("--address is for --backend ray",)),
+])
+def test_cli_mistakes_are_one_line(capsys, argv, fragments):
+    code, _, err = run_cli(capsys, *argv)
+    assert_one_line_error(code, err, *fragments)
+
+
+def test_ray_backend_without_ray_says_how_to_install_it(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    code, _, err = run_cli(capsys, "reproduce", str(grid_file(tmp_path)), "--backend", "ray",
+                           "--out", str(tmp_path / "out"))
+    assert_one_line_error(code, err, 'pip install "ilcsan[ray]"')
+
+
+def test_cli_runs_a_shrunk_grid_and_then_skips_it(tmp_path, capsys):
+    argv = ("reproduce", str(grid_file(tmp_path)), "--out", str(tmp_path / "out"), "--tasks", "Pendulum-v1",
+            "--rows", "pop", "--seeds", "3", "--steps", "150", "--start-steps", "50", "--workers", "1")
+    code, out, _ = run_cli(capsys, *argv)
+    assert code == 0, out
+    run = tmp_path / "out" / "tiny" / "Pendulum-v1" / "pop" / "seed3"
+    config = json.loads((run / "config.json").read_text())
+    assert (config["table"], config["row"], config["label"], config["seed"]) == ("tiny", "pop", "PopSAN 16", 3)
+    assert config["td3"]["start_steps"] == 50 and config["threads"] == 1
+    assert "[start] Pendulum-v1/pop seed 3" in out and "[done ]" in out
+    assert str(tmp_path / "out" / "tiny" / "report.md") in out
+    code, out, _ = run_cli(capsys, *argv)
+    assert code == 0 and "skip   Pendulum-v1/pop seed(s) 3: finished" in out and "nothing to train" in out
