@@ -4,6 +4,10 @@ Every result and checkpoint is written to a temporary file in the same folder, f
 renamed over the target (``os.replace`` is atomic on POSIX), so a crash leaves the previous version
 intact. Checkpoints load with ``torch.load(weights_only=True)`` and bundles with
 ``numpy.load(allow_pickle=False)``: a shared file is data, never code.
+
+Fault-injection hook (tests only): with ``ILCSAN_FAULT_DELAY_WRITE=SECONDS`` in the environment, every
+atomic write pauses for that long halfway through its data, so a test can kill the process while a
+half-written temporary file exists (``tests/faults``, ``benchmarks/faults.py``).
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import io
 import json
 import os
 import tempfile
+import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +48,17 @@ def _temporary_beside(path: Path):
         raise
 
 
+FAULT_DELAY_VARIABLE = "ILCSAN_FAULT_DELAY_WRITE"
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
+    delay = float(os.environ.get(FAULT_DELAY_VARIABLE) or 0)
     with _temporary_beside(path) as stream:
+        if delay > 0:  # fault injection: a half-written temporary file exists while we sleep
+            stream.write(data[: len(data) // 2])
+            stream.flush()
+            time.sleep(delay)
+            data = data[len(data) // 2:]
         stream.write(data)
 
 
@@ -79,18 +94,29 @@ def safe_torch_load(path: Path, what: str = "checkpoint") -> dict:
     if not path.is_file():
         raise UserError(f"{what} {path} does not exist")
     try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about pickle protocols of foreign files: one line only
+            warnings.simplefilter("ignore")
+            data = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
-        first = str(error).strip().splitlines()[0] if str(error).strip() else "unpickling failed"
         raise UserError(
-            f"{what} {path} was refused: it is corrupt or contains code, which is never executed ({first[:160]})"
-        ) from None
-    except (RuntimeError, EOFError, OSError, ValueError, AttributeError, TypeError) as error:
+            f"{what} {path} was refused: it is corrupt or contains code, which is never executed "
+            f"({_unpickler_reason(error)})") from None
+    except Exception as error:  # a damaged file fails in many ways (zip, storage, pickle): all mean corrupt
         raise UserError(f"{what} {path} is corrupt or truncated and cannot be read ({type(error).__name__})") \
             from None
     if not isinstance(data, dict) or "format" not in data:
         raise UserError(f"{path} is not an ilcsan {what}")
     return data
+
+
+def _unpickler_reason(error: Exception) -> str:
+    """The useful part of torch's weights-only refusal (not its advice to load the file unsafely)."""
+    text = str(error)
+    marker = "WeightsUnpickler error:"
+    if marker in text:
+        text = text.split(marker, 1)[1]
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return (lines[0] if lines else "unpickling failed")[:120]
 
 
 def read_json(path: Path, what: str = "file") -> Any:
