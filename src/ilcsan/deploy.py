@@ -9,14 +9,20 @@ What runs where
 ---------------
 Synaptic layers, event-driven (counted as SOP, Section V-F):
 
-* FC1 … FC(L+1) (Algorithm 1, W^l S_t^{l-1}): at every step t, for every presynaptic neuron i that
-  spiked, the weights of its outgoing synapses (row i of Wᵀ) are added into the layer's input
-  current; silent neurons cost nothing. One spike = fan-out accumulates.
+* FC1 … FC(L+1) (Algorithm 1, W^l S_t^{l-1}): at every step t, the rows of Wᵀ (outgoing weights) of
+  the presynaptic neurons that spiked are selected and added into the layer's input current; silent
+  neurons cost nothing. One spike = fan-out accumulates.
 * Intra FC (Eq. (10), I_{t+1}^m = W_intra^m S_t^{L,m} + b_intra^m): a spike of output neuron q at
-  t = 1..T−1 adds column q of W_intra^m onto its own population, only over the synapses its ablation
-  mask keeps (full: P_out targets, ``self``: 1, ``lateral``: P_out − 1, ``bias``/``none``: 0).
+  t = 1..T−1 adds column q of W_intra^m onto its own population. A chip holds only the synapses the
+  ablation mask keeps (full: P_out, ``self``: 1, ``lateral``: P_out − 1, ``bias``/``none``: 0 per spike)
+  and that is what is counted; numpy adds the whole block-diagonal column (zeros elsewhere), because one
+  vectorised add is cheaper here than a scatter.
 * Group FC (population decoder, X_t^m = W_D^m S_t^{L,m} + b_D^m): a spike adds one weight into the LI
-  neuron of its population.
+  neuron of its population (one ``bincount`` over the spike train's events).
+
+The layers run pipelined (:class:`Workspace`): at tick τ layer l computes its step τ − l, so the neuron
+updates of all active layers are one vector operation per tick; the result is Algorithm 1's. Buffers
+are preallocated per actor: use one :class:`DeployedActor` per thread.
 
 Neuron-local state updates (the neuron core's work, not synaptic operations; no spike multiplies a
 weight): the CLIF (or MDC-SAN dynamic) neuron's decay, threshold and hard reset, the constant biases
@@ -40,9 +46,9 @@ int8 bundles
 ------------
 A bundle written with ``--weights int8`` (:mod:`ilcsan.quantize`) stores every synaptic weight matrix
 as int8 ``q`` with a float32 per-layer scale ``s`` (array ``<name>.scale``), W ≈ s·q. The runtime
-accumulates the integers exactly (int32 for dense layers, exact integer-valued float64 bins for the
-sparse ones) and multiplies the integer sum by ``s`` once per neuron and step, as a chip's neuron core
-would (integer synapses, one scale per layer); biases stay float32.
+accumulates the integers exactly (int32 for the backbone and intra rows, exact integer-valued float64
+bins for the decoder) and multiplies the integer sum by ``s`` once per neuron and step, as a chip's
+neuron core would (integer synapses, one scale per layer); biases stay float32.
 
 Scope and refusals
 ------------------
@@ -95,11 +101,14 @@ INTRA_MASKS = {  # name → (self, lateral, bias), as ilcsan.intra.INTRA_VARIANT
 
 # ------------------------------------------------------------------------------------ synapses
 class Synapses(NamedTuple):
-    """An event-driven synaptic layer: presynaptic neuron i projects onto ``targets[i]`` with ``weights[i]``.
+    """An event-driven synaptic layer: presynaptic neuron i projects with the weights in row ``weights[i]``.
 
-    ``weights`` is (Din, F): row i holds the F outgoing weights of neuron i (float32, or int8 with
-    ``scale``). ``targets`` is (Din, F) postsynaptic indices, or None for a dense layer whose row i
-    targets all ``out_dim`` neurons in order (then F = out_dim). One spike of neuron i = F accumulates.
+    ``weights`` is (Din, F) float32 (or int8 with ``scale``): row i holds neuron i's outgoing weights.
+    ``targets`` is None for a row over all ``out_dim`` postsynaptic neurons in order (F = out_dim), else
+    (Din, F) postsynaptic indices. ``fan_out`` is the number of synapses a spike drives — one spike =
+    ``fan_out`` SOP. It is F, except for the intra-layer connections, whose rows are the block-diagonal
+    columns over the whole output layer (zeros outside the population and outside the ablation mask) while
+    ``fan_out`` counts only the kept synapses of the population.
     """
 
     name: str
@@ -108,26 +117,7 @@ class Synapses(NamedTuple):
     scale: float | None
     bias: np.ndarray
     out_dim: int
-
-    @property
-    def fan_out(self) -> int:
-        return int(self.weights.shape[1])
-
-
-def accumulate(synapses: Synapses, spikes: np.ndarray) -> np.ndarray:
-    """Σ over the neurons that spiked (``spikes`` 0/1, (Din,)) of their outgoing weights → (out_dim,).
-
-    Dense layers add the selected weight rows (int8 rows in int32, exactly); sparse layers add each
-    selected weight into its target's bin (exact float64 bins). Bias excluded; float32 for dense layers,
-    float64 bins for sparse ones (cast by the caller's in-place add).
-    """
-    if synapses.targets is None:
-        out = np.empty(synapses.out_dim, np.float32)
-        dense_accumulator(synapses)(spikes, out)
-        return out
-    sums = np.bincount(synapses.targets.compress(spikes, axis=0).ravel(),
-                       weights=synapses.weights.compress(spikes, axis=0).ravel(), minlength=synapses.out_dim)
-    return sums if synapses.scale is None else sums * synapses.scale
+    fan_out: int
 
 
 def dense_accumulator(synapses: Synapses):
@@ -193,15 +183,15 @@ def initial_state(neuron: CLIF | Dynamic, size: int) -> dict[str, np.ndarray]:
     return {name: np.zeros(size, np.float32) for name in names}
 
 
-def neuron_step(neuron: CLIF | Dynamic, state: dict[str, np.ndarray], window: slice, drive: np.ndarray,
-                previous: np.ndarray, fired: np.ndarray) -> None:
-    """One step of the neurons ``state[...][window]``, in place; writes S_t into ``fired``.
+def neuron_step(neuron: CLIF | Dynamic, state: dict[str, np.ndarray], drive: np.ndarray, previous: np.ndarray,
+                fired: np.ndarray) -> None:
+    """One step of the neurons whose state arrays (views) are ``state``, in place; writes S_t into ``fired``.
 
     CLIF (Algorithm 1, V_reset = 0): C = α_C C + X; H = α_V V + C; S = [H ≥ V_th]; V = H (1 − S).
     Dynamic (ilcsan.neurons.dynamic_step, same operation order): ``previous`` holds S_{t−1}.
     Same float32 operations, in the same order, as the PyTorch actor.
     """
-    current, voltage = state["current"][window], state["voltage"][window]
+    current, voltage = state["current"], state["voltage"]
     if isinstance(neuron, CLIF):
         current *= np.float32(neuron.alpha_current)
         current += drive
@@ -210,7 +200,7 @@ def neuron_step(neuron: CLIF | Dynamic, state: dict[str, np.ndarray], window: sl
         np.greater_equal(voltage, np.float32(neuron.threshold), out=fired)
         voltage[fired] = 0.0
         return
-    recovery = state["recovery"][window]
+    recovery = state["recovery"]
     current[...] = np.float32(neuron.alpha_current) * current + drive
     reset_voltage = np.where(previous, np.float32(neuron.theta_r), voltage)
     reset_recovery = np.where(previous, recovery + np.float32(neuron.theta_s), recovery)
@@ -220,6 +210,70 @@ def neuron_step(neuron: CLIF | Dynamic, state: dict[str, np.ndarray], window: sl
     np.greater_equal(voltage, np.float32(neuron.threshold), out=fired)
 
 
+class Tick(NamedTuple):
+    """What one tick of the pipelined backbone touches: views into the :class:`Workspace` buffers.
+
+    ``synapses``: (accumulate, presynaptic spikes, drive slice) for every active layer; ``intra``: (output
+    spikes of the previous step, output drive slice) when the intra-layer current applies.
+    """
+
+    synapses: tuple
+    drive: np.ndarray
+    bias: np.ndarray
+    state: dict[str, np.ndarray]
+    previous: np.ndarray
+    fired: np.ndarray
+    intra: tuple[np.ndarray, np.ndarray] | None
+
+
+class Workspace:
+    """Preallocated buffers of one actor and the plan of its T + L − 1 ticks (so an action allocates little).
+
+    Pipelining: at tick τ, layer l (0-based) computes its step t = τ − l. Layer l at step t needs only
+    layer l−1 at step t (computed at tick τ − 1) and its own state, so the result is Algorithm 1's; the
+    neuron updates of all active layers are one vector operation per tick. ``history`` row τ holds the
+    spikes every active layer emitted at tick τ; layer l's train is rows l .. l+T−1 of its columns.
+    """
+
+    def __init__(self, actor: DeployedActor):
+        timesteps, layers = actor.timesteps, actor.layers
+        widths = [layer.out_dim for layer in layers]
+        self.offsets = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+        last, total = len(layers) - 1, int(self.offsets[-1])
+        self.encoded = np.zeros((timesteps, layers[0].weights.shape[0]), dtype=bool)
+        self.history = np.zeros((timesteps + last, total), dtype=bool)
+        self.state = initial_state(actor.neuron, total)
+        drive = np.empty(total, np.float32)
+        bias = np.concatenate([layer.bias for layer in layers]).astype(np.float32)
+        accumulators = [dense_accumulator(layer) for layer in layers]
+        columns = [slice(self.offsets[index], self.offsets[index + 1]) for index in range(last + 1)]
+        self.ticks = []
+        for tick in range(timesteps + last):
+            first, final = max(0, tick - timesteps + 1), min(tick, last)
+            synapses = tuple(
+                (accumulators[index],
+                 self.encoded[tick] if index == 0 else self.history[tick - 1, columns[index - 1]],
+                 drive[columns[index]])
+                for index in range(first, final + 1))
+            window = slice(self.offsets[first], self.offsets[final + 1])
+            intra = None
+            if actor.intra is not None and final == last and tick > last:
+                intra = (self.history[tick - 1, columns[last]], drive[columns[last]])
+            self.ticks.append(Tick(synapses, drive[window], bias[window],
+                                   {name: value[window] for name, value in self.state.items()},
+                                   self.history[tick - 1, window], self.history[tick, window], intra))
+        self.trains = [self.encoded] + [self.history[index:index + timesteps, columns[index]]
+                                        for index in range(last + 1)]
+        self.intra_current = np.empty(widths[-1], np.float32)
+        self.add_intra = dense_accumulator(actor.intra) if actor.intra is not None else None
+
+    def reset(self) -> None:
+        """V_0 = C_0 = 0, no spikes yet."""
+        self.history.fill(False)
+        for value in self.state.values():
+            value.fill(0.0)
+
+
 # ------------------------------------------------------------------------------------- host side
 def gaussian_stimulation(state: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """Eq. (9), host: A = exp(−½((s_i − μ)/σ)²), state (N,), μ/σ (N, P_in) → (N·P_in,) float32."""
@@ -227,10 +281,11 @@ def gaussian_stimulation(state: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -
     return np.exp(-0.5 * z * z).reshape(-1)
 
 
-def deterministic_spike_train(stimulation: np.ndarray, timesteps: int, threshold: float) -> np.ndarray:
+def deterministic_spike_train(stimulation: np.ndarray, timesteps: int, threshold: float,
+                              out: np.ndarray | None = None) -> np.ndarray:
     """E_pop_det's soft-reset IF neurons on the host: v ← v + A; S = [v > V_th]; v ← v − V_th S → (T, D)."""
     voltage = np.zeros_like(stimulation)
-    spikes = np.empty((timesteps, stimulation.size), dtype=bool)
+    spikes = np.empty((timesteps, stimulation.size), dtype=bool) if out is None else out
     for t in range(timesteps):
         voltage += stimulation
         np.greater(voltage, np.float32(threshold), out=spikes[t])
@@ -240,6 +295,8 @@ def deterministic_spike_train(stimulation: np.ndarray, timesteps: int, threshold
 
 def li_voltages(inputs: np.ndarray, alpha: float) -> np.ndarray:
     """LI neuron (Eq. (7), V_reset = 0): V_t = α V_{t−1} + X_t over inputs (T, M) → (T, M)."""
+    if alpha == 1.0:  # an integrator: the running sum, added in the same order
+        return np.cumsum(inputs, axis=0, dtype=np.float32)
     voltages = np.empty_like(inputs)
     voltage = np.zeros(inputs.shape[1], inputs.dtype)
     for t in range(inputs.shape[0]):
@@ -279,15 +336,10 @@ class DeployedActor:
     total_sop_by_layer: dict[str, int] = field(default_factory=dict)
     total_sop: int = 0
     inferences: int = 0
-    _offsets: np.ndarray = field(init=False, repr=False)
-    _bias: np.ndarray = field(init=False, repr=False)
-    _accumulators: list = field(init=False, repr=False)
+    workspace: Workspace = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        widths = [layer.out_dim for layer in self.layers]
-        self._offsets = np.concatenate([[0], np.cumsum(widths)]).astype(int)
-        self._bias = np.concatenate([layer.bias for layer in self.layers]).astype(np.float32)
-        self._accumulators = [dense_accumulator(layer) for layer in self.layers]
+        self.workspace = Workspace(self)
 
     # ---------------------------------------------------------------------------- construction
     @classmethod
@@ -355,31 +407,36 @@ class DeployedActor:
     def act(self, observation: Any) -> np.ndarray:
         """Deterministic action for one observation (N,) → (M,), or a batch (B, N) → (B, M), float32."""
         batch, single = self._checked_observation(observation)
-        actions = np.stack([self._act_one(row) for row in batch])
-        return actions[0] if single else actions
+        if single:
+            return self._act_one(batch[0])
+        return np.stack([self._act_one(row) for row in batch])
 
     def normalize(self, observation: np.ndarray) -> np.ndarray:
         """Host: the frozen normaliser clip((s − mean)/std, ±clip) → float32 (as Policy.normalize)."""
         return np.clip((observation - self.obs_mean) / self.obs_std, -self.obs_clip,
                        self.obs_clip).astype(np.float32)
 
-    def spike_trains(self, observation: np.ndarray) -> list[np.ndarray]:
-        """Encoder output and every layer's spikes (T, D) for one raw observation (for analysis)."""
-        return self._forward(self.normalize(np.asarray(observation, np.float64)))[1]
+    def spike_trains(self, observation: Any) -> list[np.ndarray]:
+        """Encoder output and every layer's spikes (T, D) for one raw observation (copies, for analysis)."""
+        batch, _ = self._checked_observation(observation)
+        self._forward(self.normalize(batch[0]))
+        return [train.copy() for train in self.workspace.trains]
 
     def _act_one(self, observation: np.ndarray) -> np.ndarray:
-        output, _ = self._forward(self.normalize(observation))
+        output = self._forward(self.normalize(observation))
         return self.action_offset + self.action_scale * np.tanh(output)
 
-    def _forward(self, state: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Normalised state (N,) → (O (M,), spike trains [encoder, layer 1, …, output population])."""
-        timesteps = self.timesteps
+    def _forward(self, state: np.ndarray) -> np.ndarray:
+        """Normalised state (N,) → O (M,); the spike trains stay in ``workspace.trains`` until the next call."""
+        workspace = self.workspace
         stimulation = gaussian_stimulation(state, self.mu, self.sigma)
-        encoded = deterministic_spike_train(stimulation, timesteps, float(self.meta["enc_v_th"]))
-        history, counts = self._backbone(encoded)
-        offsets = self._offsets
-        trains = [encoded] + [history[index:index + timesteps, offsets[index]:offsets[index + 1]]
-                              for index in range(len(self.layers))]
+        deterministic_spike_train(stimulation, self.timesteps, float(self.meta["enc_v_th"]), out=workspace.encoded)
+        self._backbone()
+        trains = workspace.trains
+        counts = {layer.name: int(np.count_nonzero(spikes)) * layer.fan_out
+                  for layer, spikes in zip(self.layers, trains, strict=False)}
+        if self.intra is not None:  # output spikes of steps 1..T−1 feed I_2..I_T
+            counts[self.intra.name] = int(np.count_nonzero(trains[-1][:-1])) * self.intra.fan_out
         drive, counts[self.decoder.name] = accumulate_steps(self.decoder, trains[-1])
         voltages = li_voltages(drive, float(self.meta["alpha_v_li"]))
         self.last_sop_by_layer = counts
@@ -387,42 +444,25 @@ class DeployedActor:
             self.total_sop_by_layer[name] = self.total_sop_by_layer.get(name, 0) + count
         self.total_sop += sum(counts.values())
         self.inferences += 1
-        return select_statistic(voltages, self.meta["statistic"]), trains
+        return select_statistic(voltages, self.meta["statistic"])
 
-    def _backbone(self, encoded: np.ndarray) -> tuple[np.ndarray, dict[str, int]]:
-        """Run the L spiking layers, pipelined: at tick τ, layer l (0-based) computes its step t = τ − l.
-
-        Layer l at step t needs only layer l−1 at step t (computed at tick τ − 1) and its own state, so
-        this is Algorithm 1's result; the neuron updates of all active layers run as one vector
-        operation per tick (T + L − 1 ticks instead of T·L layer-steps). Row τ of the returned history
-        (T + L − 1, ΣD) holds the spikes each active layer emitted at tick τ.
-        """
-        timesteps, offsets, accumulators = self.timesteps, self._offsets, self._accumulators
-        last = len(self.layers) - 1
-        ticks = timesteps + last
-        history = np.zeros((ticks, offsets[-1]), dtype=bool)
-        layer_history = [history[:, offsets[index]:offsets[index + 1]] for index in range(last + 1)]
-        drive = np.empty(offsets[-1], np.float32)
-        layer_drive = [drive[offsets[index]:offsets[index + 1]] for index in range(last + 1)]
-        state = initial_state(self.neuron, int(offsets[-1]))
-        for tick in range(ticks):
-            first, final = max(0, tick - timesteps + 1), min(tick, last)
-            for index in range(first, final + 1):
-                presynaptic = encoded[tick] if index == 0 else layer_history[index - 1][tick - 1]
-                accumulators[index](presynaptic, layer_drive[index])
-            window = slice(offsets[first], offsets[final + 1])
-            drive[window] += self._bias[window]
-            if self.intra is not None and final == last and tick > last:
-                layer_drive[last] += accumulate(self.intra, layer_history[last][tick - 1]) + self.intra.bias
-            previous = history[tick - 1, window] if tick > 0 else history[ticks - 1, window]
-            neuron_step(self.neuron, state, window, drive[window], previous, history[tick, window])
-        inputs = [encoded] + [layer_history[index][index:index + timesteps] for index in range(last)]
-        counts = {layer.name: int(np.count_nonzero(spikes)) * layer.fan_out
-                  for layer, spikes in zip(self.layers, inputs, strict=True)}
-        if self.intra is not None:  # output spikes of steps 1..T−1 feed I_2..I_T
-            output_spikes = layer_history[last][last:last + timesteps - 1]
-            counts[self.intra.name] = int(np.count_nonzero(output_spikes)) * self.intra.fan_out
-        return history, counts
+    def _backbone(self) -> None:
+        """Run the L spiking layers tick by tick (:class:`Workspace`): accumulate the spikes of the previous
+        layer into each active layer's drive, add the biases and the intra-layer current, update neurons."""
+        workspace, neuron, intra = self.workspace, self.neuron, self.intra
+        workspace.reset()
+        for tick in workspace.ticks:
+            for add, presynaptic, layer_drive in tick.synapses:
+                add(presynaptic, layer_drive)
+            drive = tick.drive
+            drive += tick.bias
+            if tick.intra is not None:  # I_t = W_intra S_{t−1} + b_intra, then X_t + I_t
+                previous_output, output_drive = tick.intra
+                intra_current = workspace.intra_current
+                workspace.add_intra(previous_output, intra_current)
+                intra_current += intra.bias
+                output_drive += intra_current
+            neuron_step(neuron, tick.state, drive, tick.previous, tick.fired)
 
     def _checked_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
         try:
@@ -540,17 +580,21 @@ def _backbone(arrays: Mapping[str, np.ndarray], input_dim: int, output_dim: int,
             raise UserError(f"{source}: the output layer has {out_dim} neurons, expected M·P_out = {output_dim}")
         weight, scale = _weight(arrays, name, (out_dim, fan_in), source)
         bias = _array(arrays, f"layers.{index}.bias", (out_dim,), source)
-        layers.append(Synapses(f"FC{index + 1}", np.ascontiguousarray(weight.T), None, scale, bias, out_dim))
+        layers.append(Synapses(f"FC{index + 1}", np.ascontiguousarray(weight.T), None, scale, bias, out_dim,
+                               out_dim))
         fan_in = out_dim
     return tuple(layers)
 
 
 def _intra(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], populations: int, size: int,
            source: str) -> Synapses | None:
-    """Intra FC as a fan-out table over the synapses the ablation mask keeps.
+    """Intra FC as block-diagonal rows over the output layer, counting the synapses the ablation mask keeps.
 
     The mask comes from meta ``intra`` when present, else from the weights (a part whose weights are all
-    exactly zero is absent; masked weights are stored as exact zeros).
+    exactly zero is absent; masked weights are stored as exact zeros). Row j (a presynaptic output neuron
+    of population m) holds column j of the block-diagonal W_intra: W_intra^m[:, q] on population m's
+    slots, zeros elsewhere — one vectorised add per step is cheaper in numpy than a scatter; the SOP
+    count is spikes × the kept synapses of one population (P_out, 1, P_out − 1 or 0).
     """
     if "intra.weight" not in arrays and "intra.bias" not in arrays:
         if meta.get("intra") not in (None, "none"):
@@ -565,13 +609,12 @@ def _intra(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], population
         keep_self = bool(np.any(weight[:, eye]))
         keep_lateral = bool(np.any(weight[:, ~eye]))
     keep = (eye & keep_self) | (~eye & keep_lateral)  # keep[post, pre]
-    fan_out = int(keep[:, 0].sum())
-    columns = weight.transpose(0, 2, 1)  # [m, pre, post]
-    rows = columns[:, keep.T].reshape(populations * size, fan_out)
-    local_targets = np.stack([np.flatnonzero(keep[:, pre]) for pre in range(size)])  # (pre, F)
-    offsets = (np.arange(populations) * size)[:, None, None]
-    targets = (local_targets[None] + offsets).reshape(populations * size, fan_out)
-    return Synapses("Intra FC", np.ascontiguousarray(rows), targets, scale, bias, populations * size)
+    width = populations * size
+    rows = np.zeros((width, width), weight.dtype)  # rows[pre, post]
+    for m in range(populations):
+        block = slice(m * size, (m + 1) * size)
+        rows[block, block] = np.where(keep, weight[m], 0).T
+    return Synapses("Intra FC", rows, None, scale, bias, width, int(keep[:, 0].sum()))
 
 
 def _decoder(arrays: Mapping[str, np.ndarray], populations: int, size: int, source: str) -> Synapses:
@@ -579,4 +622,4 @@ def _decoder(arrays: Mapping[str, np.ndarray], populations: int, size: int, sour
     weight, scale = _weight(arrays, "decoder.weight", (populations, size), source)
     bias = _array(arrays, "decoder.bias", (populations,), source)
     targets = np.repeat(np.arange(populations), size)[:, None]
-    return Synapses("Group FC", weight.reshape(-1, 1), targets, scale, bias, populations)
+    return Synapses("Group FC", weight.reshape(-1, 1), targets, scale, bias, populations, 1)
