@@ -27,6 +27,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 # ------------------------------------------------------------------------------------ helpers
+MAX_SEEDS = 1000
+
+
 def parse_seeds(text: str) -> tuple[int, ...]:
     """'3' → (3,), '0-9' → (0..9), '0,2,5' → (0, 2, 5)."""
     seeds: list[int] = []
@@ -38,13 +41,20 @@ def parse_seeds(text: str) -> tuple[int, ...]:
                 low, high = int(first), int(last)
                 if high < low:
                     raise ValueError
+                if high - low >= MAX_SEEDS:
+                    raise UserError(f"--seeds {text!r} gives {high - low + 1} seeds; one run trains at most "
+                                    f"{MAX_SEEDS} together")
                 seeds.extend(range(low, high + 1))
             else:
                 seeds.append(int(part))
+    except UserError:
+        raise
     except ValueError:
         raise UserError(f"--seeds {text!r} is not a seed list; write e.g. 0, 0-9 or 0,2,5") from None
     if any(seed < 0 for seed in seeds) or len(set(seeds)) != len(seeds):
         raise UserError(f"--seeds {text!r}: seeds must be distinct non-negative integers")
+    if len(seeds) > MAX_SEEDS:
+        raise UserError(f"--seeds {text!r} gives {len(seeds)} seeds; one run trains at most {MAX_SEEDS} together")
     return tuple(seeds)
 
 
@@ -132,7 +142,8 @@ def _add_run_options(parser: argparse.ArgumentParser, steps_default: int | None)
     parser.add_argument("--threads", type=_positive_int, default=None,
                         help="torch threads (default: torch's own; use 1 when several runs share the cores)")
     parser.add_argument("--compile", default="auto",
-                        help="torch.compile the networks: auto (default: on for runs of 50000 steps or more) | on | off")
+                        help="torch.compile the networks: auto (default: on for runs of 50000 steps or more) | on | "
+                             "off")
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
@@ -246,7 +257,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .training import RunConfig, train
 
     out = Path(args.out)
-    config = RunConfig(task=args.task, seeds=(args.seed,), steps=args.steps, eval_every=args.steps // 6,
+    config = RunConfig(task=args.task, seeds=(args.seed,), steps=args.steps, eval_every=max(1, args.steps // 6),
                        eval_episodes=5, actor=actor_config("ilc-san"),
                        td3=TD3Config(start_steps=1000, update_after=1000), threads=args.threads)
     print(f"ilcsan demo: training ILC-SAN on {config.task} for {config.steps} steps (a short run, not the paper's "

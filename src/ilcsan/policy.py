@@ -8,6 +8,7 @@ robot program makes.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -67,11 +68,18 @@ class Policy:
 
     def check_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
         """Validate shape and values; returns a (B, N) float64 array and whether the input was single."""
+        if torch.is_tensor(observation):
+            observation = observation.detach().cpu().numpy()
         try:
-            array = np.asarray(observation, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise UserError(f"observation must be numbers of shape ({self.state_dim},) or (B, {self.state_dim})") \
-                from None
+            raw = np.asarray(observation)
+            if raw.dtype.kind == "O" and all(isinstance(x, numbers.Real) for x in raw.flat):
+                raw = raw.astype(np.float64)  # Python numbers; an int beyond float64 raises OverflowError
+            if raw.dtype.kind not in "biuf":  # strings, bytes, complex, dates, objects: not sensor readings
+                raise TypeError(raw.dtype)
+            array = raw.astype(np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise UserError(f"observation must be real numbers of shape ({self.state_dim},) or "
+                            f"(B, {self.state_dim})") from None
         single = array.ndim == 1
         if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
             raise UserError(f"observation has shape {array.shape}; this {self.task} policy expects "
@@ -97,21 +105,36 @@ class Policy:
 
 def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor], path: Path) -> Policy:
     config = ActorConfig.from_dict(data["actor_config"])
+    state_dim, action_dim = int(data["state_dim"]), int(data["action_dim"])
     scale = np.asarray(data["action_scale"], dtype=np.float64)
     offset = np.asarray(data["action_offset"], dtype=np.float64)
-    actor = build_actor(config, int(data["state_dim"]), int(data["action_dim"]), scale, offset, seeds=(0,))
+    obs_mean, obs_std = np.asarray(data["obs_mean"], np.float64), np.asarray(data["obs_std"], np.float64)
+    obs_clip = float(data["obs_clip"])
+    consistent = (state_dim >= 1 and action_dim >= 1 and obs_mean.shape == obs_std.shape == (state_dim,)
+                  and scale.shape == offset.shape == (action_dim,) and np.all(obs_std > 0) and obs_clip > 0
+                  and all(np.all(np.isfinite(a)) for a in (scale, offset, obs_mean, obs_std, obs_clip)))
+    if not consistent:
+        raise UserError(f"{path}: its sizes or normaliser statistics are inconsistent or not finite; the file is "
+                        "corrupt")
+    # check every tensor against the configuration before allocating anything: an untrusted file must not
+    # make us build a huge network
+    with torch.device("meta"):
+        skeleton = build_actor(config, state_dim, action_dim, scale, offset, seeds=(0,))
+    for name, param in skeleton.named_parameters():
+        value = actor_params.get(name) if isinstance(actor_params, dict) else None
+        if not torch.is_tensor(value):
+            raise UserError(f"{path} has no weights for {name!r}: it is incomplete or from another version")
+        if tuple(value.shape) != tuple(param.shape):
+            raise UserError(f"{path}: weights {name!r} have shape {tuple(value.shape)}, the actor needs "
+                            f"{tuple(param.shape)}; the file is corrupt or mismatched")
+        if not torch.all(torch.isfinite(value)):
+            raise UserError(f"{path}: weights {name!r} contain NaN or inf; the file is corrupt or its run diverged")
+    actor = build_actor(config, state_dim, action_dim, scale, offset, seeds=(0,))
     with torch.no_grad():
         for name, param in actor.named_parameters():
-            if name not in actor_params:
-                raise UserError(f"{path} has no weights for {name!r}: it is incomplete or from another version")
-            value = actor_params[name]
-            if tuple(value.shape) != tuple(param.shape):
-                raise UserError(f"{path}: weights {name!r} have shape {tuple(value.shape)}, the actor needs "
-                                f"{tuple(param.shape)}; the file is corrupt or mismatched")
-            param.copy_(value)
+            param.copy_(actor_params[name])
     actor.eval()
-    return Policy(actor, config, data["task"], np.asarray(data["obs_mean"], np.float64),
-                  np.asarray(data["obs_std"], np.float64), float(data["obs_clip"]), scale, offset,
+    return Policy(actor, config, data["task"], obs_mean, obs_std, obs_clip, scale, offset,
                   {key: data.get(key) for key in ("step", "seed", "eval_return_mean")})
 
 
@@ -140,6 +163,9 @@ def load(path: str | Path) -> Policy:
                            "obs_clip": normalizer["clip"], "task": config["task"], "step": data["step"],
                            "seed": config.get("seed")}
             return _params_to_policy(policy_data, data["actor"], file)
-    except (KeyError, TypeError, AttributeError) as error:
-        raise UserError(f"{file} is missing {error}; it is corrupt or from another version of ilcsan") from None
+    except UserError:
+        raise
+    except (KeyError, TypeError, AttributeError, ValueError, IndexError, RuntimeError) as error:
+        raise UserError(f"{file} is incomplete or corrupt ({type(error).__name__}: {str(error)[:120]}); it is "
+                        "damaged or from another version of ilcsan") from None
     raise UserError(f"{file} has format {data['format']!r}; expected an ilcsan policy or checkpoint")

@@ -381,7 +381,7 @@ class Trainer:
 
     def _reset_env(self, index: int) -> None:
         observation, _ = self.envs[index].reset()
-        self._check_finite(observation, "observation", index)
+        self._check_finite(observation, "observation", index, step=self.step + 1)
         self.observations[index] = observation
         self.normalizer.update(self.observations, mask=np.arange(len(self.envs)) == index)
 
@@ -393,11 +393,13 @@ class Trainer:
         self.normalizer.update(self.observations)
         self.episode_returns = np.zeros(len(self.envs))
 
-    def _check_finite(self, value, what: str, index: int, where: str = "environment") -> None:
-        # beyond float32's range is as bad as inf: the replay buffer stores float32
+    def _check_finite(self, value, what: str, index: int, where: str = "environment",
+                      step: int | None = None) -> None:
+        """Stop at once on NaN/inf (or beyond float32's range: the replay buffer stores float32), naming the
+        step: the environment step being taken (1-based) while training, the evaluation's step otherwise."""
         if not np.all(np.abs(np.asarray(value, dtype=np.float64)) <= FLOAT32_MAX):
             raise TrainingDiverged(
-                f"step {self.step}: the {where} returned a non-finite {what} for seed "
+                f"step {self.step if step is None else step}: the {where} returned a non-finite {what} for seed "
                 f"{self.config.seeds[index]} (NaN, inf or beyond float32's range); the run stopped and kept "
                 "its last checkpoint")
 
@@ -420,8 +422,8 @@ class Trainer:
         done = np.zeros(count, dtype=bool)
         for index, env in enumerate(self.envs):
             observation, reward, terminated, truncated, _ = env.step(actions[index])
-            self._check_finite(observation, "observation", index)
-            self._check_finite(reward, "reward", index)
+            self._check_finite(observation, "observation", index, step=self.step + 1)
+            self._check_finite(reward, "reward", index, step=self.step + 1)
             next_observations[index], rewards[index] = observation, reward
             terminals[index] = float(terminated)  # a time-limit truncation is not terminal
             done[index] = terminated or truncated
