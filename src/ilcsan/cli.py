@@ -338,6 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
     reproduce.add_argument("--workers", type=_positive_int, default=None, help="parallel runs (default: cores)")
     reproduce.add_argument("--device", default="cpu", help="cpu | cuda")
+    reproduce.add_argument("--dashboard", action="store_true",
+                           help="start the Ray dashboard (on 127.0.0.1) with the local Ray")
     reproduce.set_defaults(handler=_lazy("experiments", "cmd_reproduce"))
 
     report = commands.add_parser("report", help="tables and learning curves from runs",
@@ -365,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="train ILC-SAN briefly on a small task and plot its learning curve",
                                description="A short ILC-SAN run that shows the whole pipeline in minutes.")
     demo.add_argument("--task", default="InvertedPendulum-v4", help="task (default InvertedPendulum-v4)")
-    demo.add_argument("--steps", type=_positive_int, default=15_000, help="steps (default 15000)")
+    demo.add_argument("--steps", type=_positive_int, default=12_000, help="steps (default 12000)")
     demo.add_argument("--seed", type=_non_negative_int, default=0)
     demo.add_argument("--out", default="runs/demo", help="run directory (default runs/demo)")
     demo.add_argument("--threads", type=_positive_int, default=None)
@@ -377,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ilcsan`` console script."""
     parser = build_parser()
+    args = None
     try:
         args = parser.parse_args(argv)
         if args.command is None:
@@ -390,7 +393,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ilcsan: stopped: {error}", file=sys.stderr)
         return EXIT_DIVERGED
     except KeyboardInterrupt:
-        print("ilcsan: interrupted; continue with the same command and --resume", file=sys.stderr)
+        hint = "run the same command again" if getattr(args, "command", None) == "reproduce" else \
+            "continue with the same command and --resume"
+        print(f"ilcsan: interrupted; {hint}", file=sys.stderr)
         return 130
     except BrokenPipeError:
         os._exit(0)

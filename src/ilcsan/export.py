@@ -13,10 +13,12 @@ intra.weight           (M, P, P)     intra-layer weights, ablation mask applied 
 intra.bias             (M, P)        intra-layer bias, mask applied (absent: none)
 decoder.weight         (M, P_out)    group FC of the population decoder
 decoder.bias           (M,)
+<name>.scale           ()            float32 scale of an int8 weight, W ≈ scale · q (``--weights int8``)
 meta                   str (JSON)    T, alpha_c, alpha_v, v_th, v_reset, alpha_v_li, v_reset_li,
                                      statistic, encoder, enc_v_th, obs_mean, obs_std, obs_clip,
                                      action_scale, action_offset, output ("tanh"), neuron,
-                                     network, preset, task, population_out
+                                     network, preset, task, population_out, population_in, intra
+                                     (int8 bundles add weights, quantization)
 =====================  ============  =========================================================
 """
 
@@ -46,6 +48,7 @@ def bundle_meta(policy: Policy) -> dict[str, Any]:
         "obs_clip": policy.obs_clip, "action_scale": policy.action_scale.tolist(),
         "action_offset": policy.action_offset.tolist(), "output": "tanh", "neuron": c.neuron,
         "network": c.network, "preset": c.preset, "task": policy.task, "population_out": c.population_out,
+        "intra": c.intra,
         "population_in": c.population_in,
     }
 
