@@ -376,6 +376,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(error: Exception) -> str:
+    """The message on one line whatever the user typed: line breaks and other control characters escaped."""
+    return "".join(char if char.isprintable() else repr(char)[1:-1] for char in str(error))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ilcsan`` console script."""
     parser = build_parser()
@@ -387,10 +392,10 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_USER_ERROR
         return int(args.handler(args) or 0)
     except UserError as error:
-        print(f"ilcsan: error: {error}", file=sys.stderr)
+        print(f"ilcsan: error: {_one_line(error)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except TrainingDiverged as error:
-        print(f"ilcsan: stopped: {error}", file=sys.stderr)
+        print(f"ilcsan: stopped: {_one_line(error)}", file=sys.stderr)
         return EXIT_DIVERGED
     except KeyboardInterrupt:
         hint = "run the same command again" if getattr(args, "command", None) == "reproduce" else \

@@ -525,7 +525,7 @@ def _checked_meta(meta: Mapping[str, Any], source: str) -> dict[str, Any]:
     if vectors["action_offset"].shape != vectors["action_scale"].shape:
         raise UserError(f"{source}: meta 'action_offset' and 'action_scale' differ in length")
     intra = meta.get("intra")
-    if intra is not None and intra not in INTRA_MASKS:
+    if intra is not None and (not isinstance(intra, str) or intra not in INTRA_MASKS):
         raise UserError(f"{source}: meta 'intra' {intra!r} is not one of {', '.join(INTRA_MASKS)}")
     return dict(meta)
 

@@ -219,6 +219,8 @@ def load_grid(path: str | Path) -> TableSpec:
         raise UserError(f"grid file {path} is not valid TOML: {error}") from None
     except UnicodeDecodeError:
         raise UserError(f"grid file {path} is not UTF-8 text; a grid is a TOML file") from None
+    except RecursionError:
+        raise UserError(f"grid file {path} nests arrays or tables too deeply to be a grid") from None
     except (OSError, ValueError) as error:  # missing, a folder, unreadable; ValueError: a NUL in the path
         raise UserError(f"grid file {path} cannot be read: {getattr(error, 'strerror', None) or error}") from None
     return grid_from_dict(data, source=str(path))
