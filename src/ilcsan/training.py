@@ -622,12 +622,12 @@ class Trainer:
         atomic_write_text(self.directories[index] / "metrics.csv", buffer.getvalue())
 
     def _write_checkpoints(self) -> None:
-        """Segments, metrics, result, then checkpoint.pt last: a crash anywhere keeps the previous one.
+        """Segments, metrics, then checkpoint.pt, then result.json: a crash anywhere keeps the previous
+        checkpoint, and result.json never says "finished" before the final checkpoint is in place.
 
         With several seeds every new checkpoint is first written as ``checkpoint.next.pt``, then all are
         renamed; a crash in between is completed or undone on resume (:func:`_finish_commit`), so the
         seeds of a run always resume from the same step."""
-        results = self.results()
         target = PENDING_CHECKPOINT if len(self.directories) > 1 else "checkpoint.pt"
         for index, directory in enumerate(self.directories):
             with self._disk_errors(directory):
@@ -635,15 +635,19 @@ class Trainer:
                 if segment is not None:
                     self.segments[index].append(segment)
                 self._write_metrics(index)
-                atomic_write_json(directory / "result.json", {k: v for k, v in results[index].items()
-                                                              if k not in ("directory",)})
                 atomic_torch_save(directory / target, self._checkpoint_state(index))
         if target == PENDING_CHECKPOINT:
             for directory in self.directories:
                 os.replace(directory / PENDING_CHECKPOINT, directory / "checkpoint.pt")
+        self._write_results()
         for index, directory in enumerate(self.directories):
             ReplayBuffer.prune_segments(directory, self.segments[index])
         self.checkpointed_total = self.replay.total
+
+    def _write_results(self) -> None:
+        for directory, result in zip(self.directories, self.results(), strict=True):
+            with self._disk_errors(directory):
+                atomic_write_json(directory / "result.json", {k: v for k, v in result.items() if k != "directory"})
 
     def _checkpoint_state(self, index: int) -> dict[str, Any]:
         agent = self.agent
@@ -724,6 +728,7 @@ class Trainer:
             self.evaluations[index] = list(state["evaluations"])
             self._write_metrics(index)
             self._restore_episode(index, state["env"])
+        self._write_results()  # a crash may have come between the checkpoint and its result.json
         self.checkpointed_total = self.replay.total
         self.log(f"resumed {self.directories[0] if len(self.directories) == 1 else self.directories[0].parent} "
                  f"at step {self.step}")

@@ -127,8 +127,9 @@ def child_environment(delay: float | None = None) -> dict[str, str]:
 
 
 def run(argv: list[str], point: KillPoint | None = None, out: Path | None = None,
-        timeout: float = 300.0) -> Attempt:
-    """Run ``argv``; with a kill point, SIGKILL it there (if it has not finished by then)."""
+        timeout: float = 300.0, kill_group: bool = False) -> Attempt:
+    """Run ``argv``; with a kill point, SIGKILL it there (if it has not finished by then): the process, or
+    with ``kill_group`` its whole process group (the process started here and the workers it started)."""
     delay = point.delay if isinstance(point, During) else None
     start = time.monotonic()
     process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -140,21 +141,21 @@ def run(argv: list[str], point: KillPoint | None = None, out: Path | None = None
             if elapsed > timeout:
                 raise TimeoutError(f"{argv} did not finish in {timeout} s")
             if isinstance(point, At) and elapsed >= point.seconds:
-                killed = _kill(process)
+                killed = _kill(process, kill_group)
             elif isinstance(point, During):
                 seen.update(path.name for path in Path(out).glob(point.pattern))
                 if len(seen) >= point.occurrence:
-                    killed = _kill(process)
+                    killed = _kill(process, kill_group)
             elif isinstance(point, After):
                 if appeared is None and any(Path(out).glob(point.pattern)):
                     appeared = time.monotonic()
                 if appeared is not None and time.monotonic() - appeared >= point.seconds:
-                    killed = _kill(process)
+                    killed = _kill(process, kill_group)
             time.sleep(0.002 if isinstance(point, During) else 0.005)
         stdout, stderr = process.communicate(timeout=30)
     finally:
         if process.poll() is None:
-            _kill(process)
+            _kill(process, kill_group)
             process.communicate()
     return Attempt(killed, process.returncode, time.monotonic() - start, stdout, stderr)
 
@@ -172,11 +173,15 @@ def _run_in_process(argv: list[str]) -> Attempt:
     return Attempt(False, code, time.monotonic() - start, stdout.getvalue(), stderr.getvalue())
 
 
-def _kill(process: subprocess.Popen) -> bool:
-    """SIGKILL the process (only the one we started, by its id); True if it was still running."""
+def _kill(process: subprocess.Popen, group: bool = False) -> bool:
+    """SIGKILL the process we started (by its id), or the process group it leads (it was started in a new
+    session, so the group holds only it and its children); True if it was still running."""
     if process.poll() is not None:
         return False
-    os.kill(process.pid, signal.SIGKILL)
+    if group:
+        os.killpg(process.pid, signal.SIGKILL)
+    else:
+        os.kill(process.pid, signal.SIGKILL)
     process.wait()
     return True
 
@@ -330,3 +335,109 @@ def reference_in_process(spec: RunSpec, out: Path) -> dict[int, list[str]]:
     if code != 0:
         raise RuntimeError(f"the reference run failed with exit code {code}")
     return curves(spec, out)
+
+
+# ------------------------------------------------------------------------------------------------
+# Grids: `ilcsan reproduce GRID.toml` killed with its worker processes, then run again
+
+GRID_TOML = """\
+name = "faults"
+caption = "fault injection"
+tasks = ["Pendulum-v1"]
+seeds = {seeds}
+steps = {steps}
+eval_every = {eval_every}
+eval_episodes = 1
+
+[[rows]]
+slug = "ilc"
+preset = "ilc-san"
+overrides = {{ hidden_width = 16 }}
+{extra_rows}"""
+EXTRA_ROW = """
+[[rows]]
+slug = "pop"
+preset = "popsan"
+overrides = { hidden_width = 16 }
+"""
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """A tiny grid: Pendulum, ILC-SAN (and PopSAN) 16 wide, a few seeds; TD3 updates start at step 1000."""
+
+    seeds: int = 2
+    steps: int = 1100
+    eval_every: int = 550
+    rows: int = 1
+    workers: int = 1
+    start_steps: int = 100
+
+    def write(self, folder: Path) -> Path:
+        path = Path(folder) / "faults.toml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(GRID_TOML.format(seeds=self.seeds, steps=self.steps, eval_every=self.eval_every,
+                                         extra_rows=EXTRA_ROW if self.rows > 1 else ""))
+        return path
+
+    def argv(self, grid_file: Path, out: Path) -> list[str]:
+        return [PYTHON, "-m", "ilcsan.cli", "reproduce", str(grid_file), "--out", str(out), "--workers",
+                str(self.workers), "--start-steps", str(self.start_steps)]
+
+
+def grid_curves(out: Path) -> dict[str, list[str]]:
+    """Every run of a grid folder (found by its config.json): its curve, by path relative to ``out``."""
+    return {str(path.parent.relative_to(out)): curve(path.parent) for path in sorted(Path(out).rglob("config.json"))}
+
+
+def grid_reference_in_process(out: Path, workers: int = 1) -> dict[str, list[str]]:
+    """The straight run of every cell of a finished grid, trained here as the local backend does with one
+    worker: all seeds of a cell stacked in one process (from the runs' own config.json)."""
+    from ilcsan.training import RunConfig, load_run_config, train
+
+    if workers != 1:
+        raise ValueError("the in-process reference mirrors one worker (one job per cell, all seeds stacked)")
+    reference: dict[str, list[str]] = {}
+    cells: dict[Path, list[int]] = {}
+    for path in sorted(Path(out).rglob("config.json")):
+        cells.setdefault(path.parent.parent, []).append(load_run_config(path.parent).seeds[0])
+    for index, (cell, seeds) in enumerate(sorted(cells.items())):
+        config = load_run_config(cell / f"seed{seeds[0]}")
+        target = Path(out).parent / f"{Path(out).name}-reference" / str(index)
+        stacked = RunConfig(task=config.task, seeds=tuple(seeds), steps=config.steps, eval_every=config.eval_every,
+                            eval_episodes=config.eval_episodes, actor=config.actor, td3=config.td3, threads=1)
+        train(stacked, target, progress=False, log=lambda *_: None)
+        for seed in seeds:
+            reference[str((cell / f"seed{seed}").relative_to(out))] = curve(target / f"seed{seed}")
+    return reference
+
+
+def kill_grid_and_rerun(spec: GridSpec, folder: Path, points: list[KillPoint],
+                        final_in_process: bool = False) -> dict:
+    """Run the grid, SIGKILL it (with its workers: the whole process group) at each point, then run it again
+    to the end. Returns the kills made, what they left, and the last run's exit code and curves."""
+    from ilcsan.errors import UserError
+    from ilcsan.io import safe_torch_load
+
+    grid_file, out = spec.write(folder), Path(folder) / "out"
+    report = {"kills": 0, "kill_points": [], "corrupt": [], "codes": [], "errors": []}
+    for point in points:
+        attempt = run(spec.argv(grid_file, out), point, out, kill_group=True)
+        if not attempt.killed:
+            report["kill_points"].append(f"{point.describe()} (finished first)")
+            continue
+        report["kills"] += 1
+        report["kill_points"].append(point.describe())
+        for path in list(out.rglob("checkpoint.pt")) + list(out.rglob("policy.pt")):
+            try:
+                safe_torch_load(path)
+            except UserError as error:
+                report["corrupt"].append(str(error))
+    argv = spec.argv(grid_file, out)
+    final = _run_in_process(argv) if final_in_process else run(argv)
+    report["codes"].append(final.returncode)
+    if final.returncode != 0:
+        report["errors"].append((final.stderr or final.stdout)[-1000:])
+    report["curves"] = grid_curves(out)
+    report["leftovers"] = [str(path) for path in out.rglob("*.tmp")]
+    return report
