@@ -24,9 +24,8 @@ from .decoders import DECODERS
 from .encoders import ENCODERS, SPIKING_ENCODERS
 from .errors import UserError
 from .intra import INTRA_VARIANTS
-
-NEURONS = ("clif", "dynamic")
-NETWORKS = ("spiking", "deep")
+from .switches import NETWORKS, NEURONS
+from .switches import PRESETS as PRESET_NAMES
 
 
 @dataclass(frozen=True)
@@ -82,6 +81,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     "dan": {"network": "deep", "learning_rate": 1e-3, "encoder": "layer", "intra": "none",
             "decoder": "last"},
 }
+
+assert tuple(PRESETS) == PRESET_NAMES, "switches.PRESETS must name every preset"
 
 PRESET_SUMMARIES = {
     "ilc-san": "ILC-SAN (the paper): E_pop_det, CLIF, intra-layer connections, LI decoder D_last",

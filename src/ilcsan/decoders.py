@@ -21,8 +21,10 @@ from torch import nn
 
 from .layers import uniform_
 from .neurons import li_step
+from .switches import DECODERS
 
-DECODERS = ("last", "max", "mean", "fr")
+__all__ = ["DECODERS", "PopulationDecoder", "select_statistic", "integrate_voltages"]
+
 
 
 def select_statistic(voltages: torch.Tensor, statistic: str) -> torch.Tensor:

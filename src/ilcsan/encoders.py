@@ -22,9 +22,11 @@ import torch
 from torch import nn
 
 from .neurons import EncoderParams, soft_reset_if_step, straight_through
+from .switches import ENCODERS, SPIKING_ENCODERS
 
-ENCODERS = ("pop-det", "pop-prob", "pop", "layer", "two-neuron")
-SPIKING_ENCODERS = ("pop-det", "pop-prob")
+__all__ = ["ENCODERS", "SPIKING_ENCODERS", "Encoder", "EncodedInput", "gaussian_stimulation",
+           "deterministic_spike_train", "bernoulli_spike_train"]
+
 
 
 class EncodedInput(NamedTuple):

@@ -28,13 +28,8 @@ from typing import Any
 
 from .errors import UserError
 from .paper import FIRST_FOUR, PAPER_TASKS
+from .switches import DECODERS, ENCODERS, INTRA_VARIANTS, PRESETS
 
-PRESETS: tuple[str, ...] = ("ilc-san", "popsan", "mdc-san", "akl", "dan")
-ENCODERS: tuple[str, ...] = ("pop-det", "pop", "pop-prob", "layer", "two-neuron")
-DECODERS: tuple[str, ...] = ("last", "max", "mean", "fr")
-INTRA_VARIANTS: tuple[str, ...] = (
-    "intra", "self", "lateral", "bias", "lateral+bias", "self+bias", "self+lateral", "none",
-)
 OVERRIDE_KEYS: tuple[str, ...] = (
     "encoder", "decoder", "alpha_v_li", "intra", "hidden_layers", "hidden_width",
 )

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from .layers import uniform_
+from .switches import INTRA_VARIANTS as INTRA_NAMES
 
 
 class IntraMask(NamedTuple):
@@ -40,6 +41,9 @@ INTRA_VARIANTS: dict[str, IntraMask | None] = {
     "self+lateral": IntraMask(True, True, False),
     "none": None,
 }
+
+
+assert tuple(INTRA_VARIANTS) == INTRA_NAMES, "switches.INTRA_VARIANTS must name every variant"
 
 
 def weight_mask(population: int, mask: IntraMask) -> torch.Tensor:
