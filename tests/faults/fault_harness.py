@@ -329,9 +329,13 @@ def reference_run(spec: RunSpec, out: Path) -> tuple[dict[int, list[str]], float
 
 def reference_in_process(spec: RunSpec, out: Path) -> dict[int, list[str]]:
     """The uninterrupted run through :func:`ilcsan.cli.main` in this process (saves a start-up)."""
+    import contextlib
+    import io
+
     from ilcsan.cli import main
 
-    code = main(spec.argv(out)[3:])
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = main(spec.argv(out)[3:])
     if code != 0:
         raise RuntimeError(f"the reference run failed with exit code {code}")
     return curves(spec, out)
