@@ -51,6 +51,22 @@ def _temporary_beside(path: Path):
 FAULT_DELAY_VARIABLE = "ILCSAN_FAULT_DELAY_WRITE"
 
 
+def atomic_write_file(path: Path, write) -> None:
+    """Atomically create ``path`` with ``write(temporary_path)``, for libraries that write files themselves."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.fchmod(handle, 0o666 & ~_UMASK)
+    os.close(handle)
+    try:
+        write(temporary)
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(temporary)
+        raise
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     delay = float(os.environ.get(FAULT_DELAY_VARIABLE) or 0)
     with _temporary_beside(path) as stream:

@@ -71,8 +71,6 @@ installed here), so test a consumer on a few observations against ``policy.predi
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -82,6 +80,7 @@ import numpy as np
 from .deploy import deterministic_spike_train, gaussian_stimulation, select_statistic
 from .errors import UserError
 from .intra import INTRA_VARIANTS
+from .io import atomic_write_file
 
 FORMAT = "ilcsan-nir/1"
 DT = 1.0
@@ -210,15 +209,7 @@ def export_nir(policy, path: str | Path) -> Path:
 
     graph = build_graph(policy)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(handle)
-    try:
-        nir.write(temporary, graph)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    atomic_write_file(path, lambda temporary: nir.write(temporary, graph))
     return path
 
 
