@@ -61,7 +61,3 @@ class RunningNormalizer:
         self.m2[seed_index] = np.asarray(state["m2"], dtype=np.float64)
         self.clip = float(state["clip"])
 
-
-def normalize_frozen(observations: np.ndarray, mean: np.ndarray, std: np.ndarray, clip: float) -> np.ndarray:
-    """The deployed normalisation with frozen statistics: clip((obs − mean)/std, ±clip), float32."""
-    return np.clip((observations - mean) / std, -clip, clip).astype(np.float32)
