@@ -196,7 +196,9 @@ def bad_inputs(base: Path, scale: int) -> dict:
     counts = json.loads(counts_file.read_text()) if counts_file.is_file() else {"examples": {}, "outcomes": {}}
     collected = subprocess.run([sys.executable, "-m", "pytest", "-q", "--collect-only", "-p", "no:cacheprovider",
                                 "tests/test_reliability.py"], cwd=ROOT, capture_output=True, text=True)
-    handwritten = sum(1 for line in collected.stdout.splitlines() if "::" in line)
+    handwritten = sum(1 for line in collected.stdout.splitlines() if "::" in line) or sum(
+        int(line.rsplit(":", 1)[1]) for line in collected.stdout.splitlines()
+        if line.startswith("tests/") and line.rsplit(":", 1)[-1].strip().isdigit())
     generated = sum(counts["examples"].values())
     for name, count in sorted(counts["examples"].items()):
         log(f"  {name}: {count}")

@@ -514,3 +514,24 @@ def test_tensorboard_instructions_bind_to_loopback():
     assert mentions, "the docs explain how to watch training in TensorBoard"
     for name, line in mentions:
         assert "--host 127.0.0.1" in line, f"{name}: {line.strip()}"
+
+
+def test_export_and_report_outputs_that_cannot_be_written_are_one_line(run_copy, tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    code, _, err = cli(capsys, "export", run_copy, "--out", tmp_path / "file" / "actor.npz")
+    assert_user_error(code, err, "cannot write", "choose another --out")
+    code, _, err = cli(capsys, "report", run_copy, "--out", tmp_path / "file")
+    assert_user_error(code, err, "cannot write the report")
+    # an existing folder as --out gets the default file name inside it (it used to be a traceback)
+    (tmp_path / "folder").mkdir()
+    code, out, err = cli(capsys, "export", run_copy, "--out", tmp_path / "folder")
+    assert code == 0 and (tmp_path / "folder" / "actor.npz").is_file(), err
+
+
+def test_reproduce_into_an_unwritable_folder_is_one_line(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    grid = tmp_path / "grid.toml"
+    grid.write_text('name = "tiny"\ntasks = ["Pendulum-v1"]\nseeds = 1\nsteps = 300\n'
+                    '[[rows]]\nslug = "ilc"\npreset = "ilc-san"\noverrides = { hidden_width = 16 }\n')
+    code, _, err = cli(capsys, "reproduce", grid, "--out", tmp_path / "file" / "out", "--workers", "1")
+    assert_user_error(code, err, "cannot write results to", "Not a directory")

@@ -982,6 +982,9 @@ def cmd_reproduce(args) -> int:
         raise UserError("--address is for --backend ray; the local backend runs on this machine")
     spec, layout = resolve_table(args.table)
     grid = expand_grid(spec, args.out, options_from_args(args), layout)
+    from .training import _check_writable
+
+    _check_writable(grid.root)  # an unwritable or full --out: one line before any worker starts
     summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
     if summary.interrupted:
         return 130

@@ -98,8 +98,16 @@ def export(run: str | Path, format: str = "npz", out: Path | None = None, weight
     folder = run_path if run_path.is_dir() else run_path.parent
     suffix = "" if weights == "float32" else f".{weights}"
     out = Path(out) if out is not None else folder / f"actor{suffix}.{format}"
-    if format == "nir":
-        from .nir_export import export_nir
+    if out.is_dir():  # --out FOLDER: the default file name inside it
+        out = out / f"actor{suffix}.{format}"
+    try:
+        if format == "nir":
+            from .nir_export import export_nir
 
-        return export_nir(policy, out)
-    return export_npz(policy, out, weights)
+            return export_nir(policy, out)
+        return export_npz(policy, out, weights)
+    except (OSError, ValueError) as error:  # ValueError: a NUL in the path
+        if isinstance(error, UserError):
+            raise
+        raise UserError(f"cannot write {out}: {getattr(error, 'strerror', None) or error}; choose another --out") \
+            from None

@@ -956,7 +956,11 @@ def cmd_report(args) -> int:
     """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     scan = scan_runs(args.directory)
     table = resolve_table(args.table, scan.runs)
-    paths = write_report(args.directory, args.out, table)
+    try:
+        paths = write_report(args.directory, args.out, table)
+    except OSError as error:  # --out is a file, read-only, full, ...
+        raise UserError(f"cannot write the report to {args.out or args.directory}: {error.strerror or error}; "
+                        "choose another --out") from None
     print(f"ilcsan report: {len(scan.runs)} run(s) found below {args.directory}"
           + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
     for kind, path in paths.items():
