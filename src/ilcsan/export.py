@@ -98,6 +98,8 @@ def export(run: str | Path, format: str = "npz", out: Path | None = None, weight
     folder = run_path if run_path.is_dir() else run_path.parent
     suffix = "" if weights == "float32" else f".{weights}"
     out = Path(out) if out is not None else folder / f"actor{suffix}.{format}"
+    if "\x00" in str(out):
+        raise UserError(f"--out {str(out)!r} contains a NUL byte; choose another --out")
     if out.is_dir():  # --out FOLDER: the default file name inside it
         out = out / f"actor{suffix}.{format}"
     try:
@@ -106,8 +108,5 @@ def export(run: str | Path, format: str = "npz", out: Path | None = None, weight
 
             return export_nir(policy, out)
         return export_npz(policy, out, weights)
-    except (OSError, ValueError) as error:  # ValueError: a NUL in the path
-        if isinstance(error, UserError):
-            raise
-        raise UserError(f"cannot write {out}: {getattr(error, 'strerror', None) or error}; choose another --out") \
-            from None
+    except OSError as error:
+        raise UserError(f"cannot write {out}: {error.strerror or error}; choose another --out") from None
