@@ -32,6 +32,7 @@ import json
 import os
 import platform
 import random
+import re
 import shutil
 import subprocess
 import sys
@@ -186,10 +187,11 @@ def bad_inputs(base: Path, scale: int) -> dict:
                OMP_NUM_THREADS="1", MPLBACKEND="Agg")
     log(f"property tests at {scale}x their CI examples, and the hand-written cases ...")
     start = time.monotonic()
-    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+    result = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
                              "tests/test_properties.py", "tests/test_reliability.py"], cwd=ROOT, env=env,
                             capture_output=True, text=True)
-    summary = [line for line in result.stdout.splitlines() if " passed" in line or " failed" in line]
+    summary = [line.strip("= ") for line in result.stdout.splitlines()
+               if re.search(r"\b\d+ (passed|failed)\b.* in [\d.]+s", line)]
     log(f"  pytest: {summary[-1] if summary else result.stdout[-500:]} ({time.monotonic() - start:.0f} s)")
     if result.returncode != 0:
         log(result.stdout[-4000:])
