@@ -47,6 +47,23 @@ class TwinCritic(nn.Module):
         return self.mlp(twin).reshape(k, 2, b)
 
 
+COMPILE_RECOMPILE_LIMIT = 64
+
+
+def prepare_compilation() -> None:
+    """Free the graphs of earlier agents in this process and allow enough variants per function.
+
+    torch.compile guards each graph on the module instance, grad mode and input shapes; one agent needs
+    about three variants per forward (acting, training, target), so a process that builds agent after agent
+    (``ilcsan reproduce`` workers, benchmarks) would exhaust dynamo's default limit of 8 and silently fall
+    back to eager execution.
+    """
+    import torch._dynamo
+
+    torch._dynamo.reset()
+    torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, COMPILE_RECOMPILE_LIMIT)
+
+
 def polyak_update(target: nn.Module, source: nn.Module, tau: float) -> None:
     """θ' ← τ θ + (1 − τ) θ' for every parameter, in one fused call."""
     with torch.no_grad():
@@ -73,6 +90,8 @@ class TD3Agent:
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate, fused=fused)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr, fused=fused)
         self.compiled = compile
+        if compile:
+            prepare_compilation()
         # The networks as called in the hot path: compiled graphs (one per input shape) or the modules themselves.
         wrap = (lambda module: torch.compile(module, dynamic=False)) if compile else (lambda module: module)
         self.actor_fn, self.actor_target_fn = wrap(self.actor), wrap(self.actor_target)

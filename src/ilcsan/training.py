@@ -169,9 +169,9 @@ COMPILE_AUTO_STEPS = 50_000
 
 
 def use_compile(config: RunConfig) -> bool:
-    """Compile when asked, or (auto) when the run is long enough to repay ~10-30 s of compilation."""
-    if config.compile == "auto":
-        return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast"
+    """Compile when asked, or (auto) for a spiking actor whose run is long enough to repay ~10-30 s of compiling."""
+    if config.compile == "auto":  # DAN's plain MLP runs faster eager (benchmarks/RESULTS.md)
+        return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast" and config.actor.network == "spiking"
     return config.compile == "on"
 
 
