@@ -316,7 +316,8 @@ def test_energy_table_follows_from_the_op_counts(task: str) -> None:
 # ------------------------------------------------------------------------------------------------
 # The transcription against the paper's LaTeX source, where it is available (not part of the repo)
 
-PAPER_TEX = Path(os.environ.get("ILCSAN_PAPER_TEX", "/work/shared/paper/ilc-san.tex"))
+SHARED_TEX = Path(__file__).resolve().parents[2] / "shared" / "paper" / "ilc-san.tex"  # ../shared beside the repo
+PAPER_TEX = Path(os.environ.get("ILCSAN_PAPER_TEX", SHARED_TEX))
 needs_tex = pytest.mark.skipif(not PAPER_TEX.exists(), reason="the paper's .tex is not available")
 
 
