@@ -787,11 +787,18 @@ def smooth(values: np.ndarray, window: int = SMOOTHING_WINDOW) -> np.ndarray:
     return (cumulative - shifted) / counts
 
 
-def curve(runs: Sequence[RunRecord], window: int = SMOOTHING_WINDOW) -> tuple[np.ndarray, ...] | None:
+def smoothing_window(points: int) -> int:
+    """Smooth long curves only: 5 evaluations for the paper's 100-point curves, none below 20 points
+    (a short run's few evaluations would lag far behind what it reached)."""
+    return max(1, min(SMOOTHING_WINDOW, points // 20))
+
+
+def curve(runs: Sequence[RunRecord], window: int | None = None) -> tuple[np.ndarray, ...] | None:
     """(steps, mean, std) over seeds at the steps every run evaluated, each run smoothed first.
 
     Curves are aligned on the common steps (the intersection of the runs' evaluation steps), so a
-    seed that is still running shortens the curve. None when there are no common steps.
+    seed that is still running shortens the curve. None when there are no common steps. ``window``
+    defaults to :func:`smoothing_window` of the curve's length.
     """
     with_curves = [run for run in runs if run.steps]
     if not with_curves:
@@ -801,7 +808,7 @@ def curve(runs: Sequence[RunRecord], window: int = SMOOTHING_WINDOW) -> tuple[np
         return None
     values = np.array([[dict(zip(run.steps, run.returns, strict=True))[step] for step in common]
                        for run in with_curves])
-    smoothed = smooth(values, window)
+    smoothed = smooth(values, smoothing_window(len(common)) if window is None else window)
     return np.array(common, dtype=float), smoothed.mean(axis=0), smoothed.std(axis=0, ddof=0)
 
 
@@ -810,7 +817,8 @@ def plot_curves(runs: Sequence[RunRecord], path: str | Path, table: str | TableS
 
     One panel per task of :func:`build_table` ``(runs, table)``, one line per row with runs: the mean
     over seeds of ``eval_return_mean`` against the step, shaded ± half the std (as the paper's
-    figures), smoothed by :func:`smooth` (trailing moving average over 5 evaluations) and aligned on
+    figures), smoothed by :func:`smooth` (trailing moving average over 5 evaluations for curves of 100
+    or more evaluations, fewer for shorter curves, none below 20: :func:`smoothing_window`) and aligned on
     the steps common to the row's seeds (:func:`curve`). Written atomically.
     """
     return draw_curves([build_table(runs, table)], path)
