@@ -261,7 +261,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                        td3=TD3Config(start_steps=1000, update_after=1000), threads=args.threads)
     print(f"ilcsan demo: training ILC-SAN on {config.task} for {config.steps} steps (a short run, not the paper's "
           f"1M-step protocol); results in {out}")
-    results = train(config, out, resume=args.resume, progress=None)
+    # always resume: running the quick start again continues (or just reports) the demo instead of refusing
+    results = train(config, out, resume=True, progress=None)
     _print_results(results, out)
     from .report import collect_runs, plot_curves
 
@@ -370,7 +371,6 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=_non_negative_int, default=0)
     demo.add_argument("--out", default="runs/demo", help="run directory (default runs/demo)")
     demo.add_argument("--threads", type=_positive_int, default=None)
-    demo.add_argument("--resume", action="store_true", help="continue an interrupted demo")
     demo.set_defaults(handler=cmd_demo)
     return parser
 
