@@ -4,7 +4,8 @@ What it measures, on this machine, in this order:
   1. the float32 GEMM peak (2048² matmul) for 1 and for --threads threads: the machine's matmul limit;
   2. environment steps per second including TD3 updates, for DAN, PopSAN and ILC-SAN on Hopper and Ant,
      with the reference engine (Algorithm 1's time-step loop, eager, as the authors' code) and the fast
-     engine (layer-major, torch.compile, fused Adam), as a fraction of the matmul limit;
+     engine (layer-major, torch.compile of the spiking actor, fused Adam), in float32 and with bf16 matmuls
+     (``--matmul bf16``: AMX on this CPU), as a fraction of the float32 matmul limit;
   3. Stable-Baselines3's TD3 (MLP actor 256-256, batch 100, one update per step) when it is installed;
   4. K seeds trained together in one process vs the same cores running separate single-seed processes;
   5. batch-1 action latency of ``Policy.predict``.
@@ -82,12 +83,13 @@ def td3_step_flops(preset: str, state_dim: int, action_dim: int, td3: TD3Config)
 
 
 def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], threads: int, steps: int,
-                   warmup: int, compiled: bool = True) -> float:
+                   warmup: int, compiled: bool = True, matmul: str = "float32") -> float:
     """Environment steps per second per seed, including updates, after ``warmup`` steps."""
     compile_mode = "on" if engine == "fast" and compiled else "off"
     td3 = TD3Config(start_steps=0, update_after=100, update_every=50)
     config = RunConfig(task=task, seeds=seeds, steps=warmup + steps + 1, eval_every=10**9, eval_episodes=1,
-                       actor=actor_config(preset), td3=td3, engine=engine, threads=threads, compile=compile_mode)
+                       actor=actor_config(preset), td3=td3, engine=engine, threads=threads, compile=compile_mode,
+                       matmul=matmul)
     with tempfile.TemporaryDirectory() as folder:
         trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
         try:
@@ -140,10 +142,10 @@ def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
     return float(np.median(times) * 1e6)
 
 
-def separate_runs_speed(task: str, preset: str, processes: int, steps: int, warmup: int) -> float:
+def separate_runs_speed(task: str, preset: str, processes: int, steps: int, warmup: int, matmul: str) -> float:
     """Aggregate steps/s of ``processes`` single-seed runs at once, one torch thread each."""
     command = [sys.executable, __file__, "--worker", json.dumps({"task": task, "preset": preset, "steps": steps,
-                                                                 "warmup": warmup})]
+                                                                 "warmup": warmup, "matmul": matmul})]
     workers = [subprocess.Popen(command, stdout=subprocess.PIPE, text=True) for _ in range(processes)]
     speeds = [float(worker.communicate()[0].strip().splitlines()[-1]) for worker in workers]
     return sum(speeds)
@@ -162,7 +164,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.worker:
         job = json.loads(args.worker)
-        print(training_speed(job["task"], job["preset"], "fast", (0,), 1, job["steps"], job["warmup"]))
+        print(training_speed(job["task"], job["preset"], "fast", (0,), 1, job["steps"], job["warmup"],
+                             matmul=job["matmul"]))
         return
 
     lines = []
@@ -178,38 +181,43 @@ def main() -> None:
          f"{peak_n:.0f} GFLOP/s ({args.threads} threads).")
     emit()
     emit("| task | actor | reference engine, eager (steps/s) | fast engine, eager | fast engine, compiled | "
-         "compiled / reference | GFLOP per step | compiled as % of matmul limit |")
-    emit("|---|---|---|---|---|---|---|---|")
-    fast_speeds = {}
+         "compiled / reference | compiled, bf16 matmuls | bf16 / reference | GFLOP per step | "
+         "compiled (float32) as % of matmul limit |")
+    emit("|---|---|---|---|---|---|---|---|---|---|")
+    fast_speeds, bf16_speeds = {}, {}
     for task in args.tasks.split(","):
         state_dim, action_dim = TASK_SIZES[task]
         for preset in args.presets.split(","):
             reference = training_speed(task, preset, "reference", (0,), args.threads, args.steps, args.warmup)
             eager = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup, compiled=False)
             fast = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup)
-            fast_speeds[(task, preset)] = fast
+            bf16 = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup, matmul="bf16")
+            fast_speeds[(task, preset)], bf16_speeds[(task, preset)] = fast, bf16
             flops = td3_step_flops(preset, state_dim, action_dim, td3)
             limit = peak_n * 1e9 / flops
             emit(f"| {task} | {preset} | {reference:.0f} | {eager:.0f} | {fast:.0f} | {fast / reference:.2f}× | "
-                 f"{flops / 1e9:.3f} | "
+                 f"{bf16:.0f} | {bf16 / reference:.2f}× | {flops / 1e9:.3f} | "
                  f"{100 * fast / limit:.0f}% of {limit:.0f} |")
     emit()
     sb3 = sb3_speed("Hopper", args.threads, args.steps, args.warmup)
     if sb3 is None:
         emit("Stable-Baselines3 is not installed (pip install stable-baselines3): no comparison.")
     else:
-        ilc = fast_speeds.get(("Hopper", "ilc-san"))
-        emit(f"Stable-Baselines3 TD3 (MLP 256-256) on Hopper: {sb3:.0f} steps/s; ILC-SAN fast engine: "
-             f"{ilc:.0f} steps/s = {ilc / sb3:.2f}× SB3 (SB3 trains an MLP actor, ours a spiking one).")
+        ilc, ilc_bf16 = fast_speeds.get(("Hopper", "ilc-san")), bf16_speeds.get(("Hopper", "ilc-san"))
+        emit(f"Stable-Baselines3 TD3 (MLP 256-256, float32) on Hopper: {sb3:.0f} steps/s; ILC-SAN fast engine: "
+             f"{ilc:.0f} steps/s = {ilc / sb3:.2f}× SB3, with bf16 matmuls {ilc_bf16:.0f} steps/s = "
+             f"{ilc_bf16 / sb3:.2f}× SB3 (SB3 trains an MLP actor, ours a spiking one).")
     emit()
     k = args.seeds
-    together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), args.threads, args.steps // 2,
-                                  args.warmup)
     cores = os.cpu_count() or 2
-    separate = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup)
-    emit(f"Many seeds, ILC-SAN on Hopper: {k} seeds in one process {together:.0f} steps/s in aggregate; "
-         f"{cores} separate single-seed processes (1 thread each) {separate:.0f} steps/s in aggregate: "
-         f"{together / separate:.2f}× faster together.")
+    for matmul in ("float32", "bf16"):
+        together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), args.threads, args.steps // 2,
+                                      args.warmup, matmul=matmul)
+        separate = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup, matmul)
+        emit(f"Many seeds, ILC-SAN on Hopper, {matmul} matmuls: {k} seeds in one process {together:.0f} steps/s "
+             f"in aggregate; {cores} separate single-seed processes (1 thread each) {separate:.0f} steps/s in "
+             f"aggregate: {together / separate:.2f}× faster together.")
+        emit()
     emit()
     for task in args.tasks.split(","):
         emit(f"Batch-1 action latency, Policy.predict, ILC-SAN on {task} (PyTorch eager, 1 thread): "

@@ -62,6 +62,56 @@ def test_each_seed_of_an_ensemble_updates_like_a_single_run():
     assert many.updates == 4
 
 
+def _random_batch(rng, seeds, batch, state_dim, action_dim):
+    arrays = {"obs": rng.normal(size=(seeds, batch, state_dim)),
+              "action": rng.uniform(-1, 1, (seeds, batch, action_dim)),
+              "reward": rng.normal(size=(seeds, batch)), "next_obs": rng.normal(size=(seeds, batch, state_dim)),
+              "terminal": (rng.uniform(size=(seeds, batch)) < 0.1)}
+    return {k: v.astype(np.float32) for k, v in arrays.items()}
+
+
+def test_compiled_agent_updates_like_the_eager_agent():
+    """torch.compile of the spiking actor changes nothing but speed: same actions, same weights after updates.
+
+    The critic is never compiled (plain MLP; faster eager, see td3.py)."""
+    config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
+    eager = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
+    compiled = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
+    assert compiled.compiled and compiled.critic_fn is compiled.critic and compiled.actor_fn is not compiled.actor
+    rng = np.random.default_rng(1)
+    for _ in range(4):  # two delayed actor updates
+        arrays = _random_batch(rng, 1, 16, 3, 2)
+        eager.update(eager.to_batch(arrays))
+        compiled.update(compiled.to_batch(arrays))
+    for module in ("actor", "critic", "actor_target"):
+        for (name, p_eager), (_, p_compiled) in zip(getattr(eager, module).named_parameters(),
+                                                    getattr(compiled, module).named_parameters(), strict=True):
+            assert torch.allclose(p_eager, p_compiled, atol=1e-5), f"{module}.{name}"
+    state = rng.normal(size=(1, 3)).astype(np.float32)
+    assert np.allclose(eager.act(state), compiled.act(state), atol=1e-5)
+    # A deep actor (DAN) is not compiled even when asked: eager is faster for MLPs.
+    assert not TD3Agent(actor_config("dan", hidden=(8,)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(0,),
+                        compile=True).compiled
+
+
+@pytest.fixture
+def _restore_matmul_precision():
+    before = torch.get_float32_matmul_precision()
+    yield
+    torch.set_float32_matmul_precision(before)
+
+
+def test_matmul_option_sets_the_precision_and_rejects_unknown_names(tmp_path, _restore_matmul_precision):
+    trainer = Trainer(tiny_run(matmul="bf16", steps=10), tmp_path / "bf16", progress=False, log=lambda *_: None)
+    trainer.close()
+    assert torch.get_float32_matmul_precision() == "medium"
+    trainer = Trainer(tiny_run(steps=10), tmp_path / "f32", progress=False, log=lambda *_: None)
+    trainer.close()
+    assert torch.get_float32_matmul_precision() == "highest"
+    with pytest.raises(UserError, match="--matmul 'fp8' is not one of: float32, bf16"):
+        Trainer(tiny_run(matmul="fp8"), tmp_path / "bad", progress=False, log=lambda *_: None)
+
+
 def test_multi_seed_run_equals_single_runs(tmp_path):
     together = train(tiny_run(seeds=(0, 1)), tmp_path / "together", progress=False, log=lambda *_: None)
     train(tiny_run(seeds=(1,)), tmp_path / "alone", progress=False, log=lambda *_: None)

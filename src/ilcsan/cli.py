@@ -143,6 +143,9 @@ def _add_run_options(parser: argparse.ArgumentParser, steps_default: int | None)
     parser.add_argument("--compile", default="auto",
                         help="torch.compile the networks: auto (default: on for runs of 50000 steps or more) | on | "
                              "off")
+    parser.add_argument("--matmul", default="float32",
+                        help="float32 (default) | bf16: matmul inputs rounded to bfloat16 with float32 accumulation, "
+                             "on AMX/AVX512-BF16 CPUs (and TF32/bf16 on CUDA); ~1.3x faster training here")
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
@@ -160,7 +163,7 @@ def build_run_config(args: argparse.Namespace, task: str | None = None):
         eval_every=args.eval_every or defaults["eval_every"],
         eval_episodes=args.eval_episodes or defaults["eval_episodes"],
         actor=actor, td3=TD3Config(**td3_overrides), device=args.device, engine=args.engine, threads=args.threads,
-        compile=args.compile, label=getattr(args, "label", None),
+        compile=args.compile, matmul=args.matmul, label=getattr(args, "label", None),
     )
 
 

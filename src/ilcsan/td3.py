@@ -89,13 +89,17 @@ class TD3Agent:
         fused = self.device.type in ("cpu", "cuda")
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate, fused=fused)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr, fused=fused)
-        self.compiled = compile
-        if compile:
+        # Only a spiking actor is compiled: its many small neuron-update ops fuse into a few loops (2-2.5x
+        # faster). The critic and DAN are plain MLPs that run faster eager: compiling saves nothing there,
+        # and inductor's CPU code stores ReLU's backward mask (a bool tensor) ~20x slower than eager
+        # (torch 2.13, measured: 518 µs vs 27 µs for 51 200 elements), so a compiled critic costs ~1 ms per update.
+        self.compiled = compile and actor_config.network == "spiking"
+        if self.compiled:
             prepare_compilation()
         # The networks as called in the hot path: compiled graphs (one per input shape) or the modules themselves.
-        wrap = (lambda module: torch.compile(module, dynamic=False)) if compile else (lambda module: module)
+        wrap = (lambda module: torch.compile(module, dynamic=False)) if self.compiled else (lambda module: module)
         self.actor_fn, self.actor_target_fn = wrap(self.actor), wrap(self.actor_target)
-        self.critic_fn, self.critic_target_fn = wrap(self.critic), wrap(self.critic_target)
+        self.critic_fn, self.critic_target_fn = self.critic, self.critic_target
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)

@@ -65,6 +65,7 @@ class RunConfig:
     engine: str = "fast"  # fast | reference
     threads: int | None = None  # torch threads; None: torch's default
     compile: str = "auto"  # torch.compile the networks: on | off | auto (on for runs of 50 000 steps or more)
+    matmul: str = "float32"  # float32 | bf16 (matmul inputs rounded to bfloat16, float32 accumulation; see below)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`
@@ -111,6 +112,8 @@ def validate_run(config: RunConfig) -> None:
         raise UserError(f"--device {config.device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     if config.compile not in ("auto", "on", "off"):
         raise UserError(f"--compile {config.compile!r} is not one of: auto, on, off")
+    if config.matmul not in MATMUL_PRECISIONS:
+        raise UserError(f"--matmul {config.matmul!r} is not one of: {', '.join(MATMUL_PRECISIONS)}")
     if config.threads is not None and config.threads < 1:
         raise UserError(f"--threads must be at least 1, got {config.threads}")
     most_threads = 4 * (os.cpu_count() or 1)
@@ -166,6 +169,16 @@ def check_memory(config: RunConfig, state_dim: int, action_dim: int) -> None:
 
 
 COMPILE_AUTO_STEPS = 50_000
+
+# --matmul → torch's float32 matmul precision. "bf16" lets oneDNN round a float32 matmul's inputs to bfloat16
+# and accumulate in float32 (AMX / AVX512-BF16 CPUs; elsewhere it stays float32); on CUDA torch then uses
+# TF32/bf16 tensor cores. Neuron states, spikes, losses and optimiser stay float32 either way.
+MATMUL_PRECISIONS = {"float32": "highest", "bf16": "medium"}
+
+
+def set_matmul_precision(name: str) -> None:
+    """Apply ``--matmul`` to this process (torch's setting is global)."""
+    torch.set_float32_matmul_precision(MATMUL_PRECISIONS[name])
 
 
 def use_compile(config: RunConfig) -> bool:
@@ -307,6 +320,7 @@ class Trainer:
         self.directories = run_directories(Path(out), config.seeds)
         if config.threads is not None:
             torch.set_num_threads(config.threads)
+        set_matmul_precision(config.matmul)
         self._locks: list = []
         self.envs, self.eval_envs, self.writers = [], [], None
         try:
