@@ -94,7 +94,7 @@ def crash_after_first_checkpoint(monkeypatch) -> None:
 def test_paper_table_expands_into_tagged_runs(tmp_path):
     grid = expand_grid(TABLES["intra"], tmp_path, GridOptions(seeds=(0, 2), tasks=("hopper", "Ant"),
                                                              rows=("self", "intra"), steps=5000,
-                                                             td3={"start_steps": 100}))
+                                                             td3={"start_steps": 100}, matmul="bf16"))
     assert [run.key for run in grid.runs][:4] == ["Hopper/self/seed0", "Hopper/self/seed2", "Hopper/intra/seed0",
                                                   "Hopper/intra/seed2"]
     assert len(grid.runs) == 2 * 2 * 2 and grid.total_steps == 8 * 5000
@@ -102,7 +102,7 @@ def test_paper_table_expands_into_tagged_runs(tmp_path):
     assert run.directory == tmp_path.absolute() / "intra" / "Hopper" / "self" / "seed0"
     assert (run.config.table, run.config.row, run.config.label) == ("intra", "self", "I_self")
     assert run.config.seeds == (0,) and run.config.threads == 1 and run.config.actor.intra == "self"
-    assert run.config.td3.start_steps == 100 and run.config.steps == 5000
+    assert run.config.td3.start_steps == 100 and run.config.steps == 5000 and run.config.matmul == "bf16"
     assert run.config.eval_every == 10_000 and run.config.eval_episodes == 10  # the paper's protocol
     assert grid.report_table == TABLES["intra"] or grid.report_table == "intra"
 
@@ -345,6 +345,7 @@ def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch
     (("reproduce", "intra", "--seeds", "3-1"), ("--seeds",)),
     (("reproduce", "intra", "--backend", "slurm"), ("--backend 'slurm'",)),
     (("reproduce", "intra", "--address", "10.0.0.1:6379"), ("--address is for --backend ray",)),
+    (("reproduce", "intra", "--matmul", "fp16"), ("--matmul 'fp16'", "float32, bf16")),
 ])
 def test_cli_mistakes_are_one_line(capsys, argv, fragments):
     code, _, err = run_cli(capsys, *argv)

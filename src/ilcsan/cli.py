@@ -341,6 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
     reproduce.add_argument("--workers", type=_positive_int, default=None, help="parallel runs (default: cores)")
     reproduce.add_argument("--device", default="cpu", help="cpu | cuda")
+    reproduce.add_argument("--matmul", default="float32", help="float32 (default) | bf16 (see train --matmul)")
     reproduce.add_argument("--dashboard", action="store_true",
                            help="start the Ray dashboard (on 127.0.0.1) with the local Ray")
     reproduce.set_defaults(handler=_lazy("experiments", "cmd_reproduce"))

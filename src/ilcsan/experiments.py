@@ -100,6 +100,7 @@ class GridOptions:
     eval_episodes: int | None = None
     td3: Mapping[str, Any] = field(default_factory=dict)  # TD3Config overrides, e.g. start_steps
     device: str = "cpu"
+    matmul: str = "float32"  # float32 | bf16 (RunConfig.matmul)
 
 
 @dataclass(frozen=True)
@@ -190,8 +191,8 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
         for row in rows:
             base = RunConfig(task=task, seeds=(seeds[0],), steps=shrunk.steps, eval_every=shrunk.eval_every,
                              eval_episodes=shrunk.eval_episodes, actor=actor_config(row.preset, **row.overrides),
-                             td3=td3, device=options.device, threads=1, label=row.label, table=spec.name,
-                             row=row.slug)
+                             td3=td3, device=options.device, matmul=options.matmul, threads=1, label=row.label,
+                             table=spec.name, row=row.slug)
             for seed in seeds:
                 directory = out / spec.name / task_folder(task) / row.slug / f"seed{seed}"
                 runs.append(GridRun(task, row, seed, directory, dataclasses.replace(base, seeds=(seed,))))
@@ -962,7 +963,7 @@ def options_from_args(args) -> GridOptions:
     return GridOptions(
         seeds=None if args.seeds is None else parse_seeds(args.seeds), steps=args.steps, tasks=_split(args.tasks),
         rows=_split(args.rows), eval_every=args.eval_every, eval_episodes=args.eval_episodes, td3=td3,
-        device=args.device)
+        device=args.device, matmul=getattr(args, "matmul", "float32"))
 
 
 def cmd_reproduce(args) -> int:
@@ -982,7 +983,10 @@ def cmd_reproduce(args) -> int:
         raise UserError("--address is for --backend ray; the local backend runs on this machine")
     spec, layout = resolve_table(args.table)
     grid = expand_grid(spec, args.out, options_from_args(args), layout)
-    from .training import _check_writable
+    from .training import _check_writable, validate_run
+
+    for run in grid.runs[:1]:  # a bad --matmul: one line before any worker starts (devices are the workers')
+        validate_run(dataclasses.replace(run.config, device="cpu"))
 
     _check_writable(grid.root)  # an unwritable or full --out: one line before any worker starts
     summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
