@@ -6,20 +6,25 @@ import pytest
 
 from ilcsan.config import TD3Config, actor_config
 from ilcsan.evaluation import random_policy_return
-from ilcsan.training import RunConfig, train
+from ilcsan.training import RunConfig, set_matmul_precision, train
 
 THRESHOLD = -600.0  # Pendulum-v1: random actions score about -1200, a swinging-up policy above -400
 
 
 @pytest.mark.slow
-def test_ilc_san_learns_pendulum(tmp_path):
+@pytest.mark.parametrize("matmul", ["float32", "bf16"])
+def test_ilc_san_learns_pendulum(tmp_path, matmul):
+    """Also with bf16 matmuls (--matmul bf16; on a CPU without bf16 support it is float32 again)."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=6000, eval_every=2000, eval_episodes=5,
                        actor=actor_config("ilc-san"), td3=TD3Config(start_steps=1000, update_after=1000),
-                       threads=1, compile="off")
-    result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
+                       threads=1, compile="off", matmul=matmul)
+    try:
+        result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
+    finally:
+        set_matmul_precision("float32")
     random_return = random_policy_return("Pendulum-v1", episodes=5, seed=0)
     assert random_return < -900.0, "the threshold must be out of reach of random actions"
-    assert result["best_return"] > THRESHOLD, f"ILC-SAN reached only {result['best_return']:.1f}"
+    assert result["best_return"] > THRESHOLD, f"ILC-SAN ({matmul}) reached only {result['best_return']:.1f}"
 
 
 def test_an_actor_that_cannot_learn_stays_below_the_threshold(tmp_path):
