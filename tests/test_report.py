@@ -355,10 +355,11 @@ def test_plot_curves_one_panel_per_task(tmp_path: Path) -> None:
         intra_run(tmp_path / "runs", "Hopper", "intra", seed, list(np.linspace(0, 3000, 12) + seed * 100))
         intra_run(tmp_path / "runs", "Hopper", "none", seed, list(np.linspace(0, 2000, 12)))
     path = tmp_path / "plots" / "curves.png"
+    intra_run(tmp_path / "runs", "Ant", "intra", 0, [100, 200])
     figure = plot_curves(collect_runs(tmp_path / "runs"), path, table="intra")
-    assert len(figure.axes) == 4
-    assert [axes.get_title() for axes in figure.axes] == ["Ant", "HalfCheetah", "Hopper", "Walker2d"]
-    hopper = figure.axes[2]
+    # panels for the tasks that have runs only: HalfCheetah and Walker2d have none
+    assert [axes.get_title() for axes in figure.axes] == ["Ant", "Hopper"]
+    hopper = figure.axes[1]
     assert sorted(line.get_label() for line in hopper.get_lines()) == ["I_intra", "No I_intra"]
     (intra_line,) = [line for line in hopper.get_lines() if line.get_label() == "I_intra"]
     # 12 evaluations: too short to smooth (smoothing_window), so the last point is the seeds' mean there
@@ -371,10 +372,13 @@ def test_plot_curves_one_panel_per_task(tmp_path: Path) -> None:
     assert width > height > 100
 
 
-def test_plot_curves_for_the_perf_table_has_eight_panels(tmp_path: Path) -> None:
+def test_plot_curves_of_one_task_is_one_large_panel_and_of_no_runs_every_task(tmp_path: Path) -> None:
     make_run(tmp_path, "Humanoid", 0, "DAN", [10, 20], table="perf", row="dan", preset="dan")
     figure = plot_curves(collect_runs(tmp_path), tmp_path / "c.png", table="perf")
-    assert len(figure.axes) == 8
+    assert [axes.get_title() for axes in figure.axes] == ["Humanoid"]
+    assert tuple(figure.get_size_inches()) == (6.4, 4.0)
+    empty = plot_curves([], tmp_path / "empty.png", table="perf")
+    assert len(empty.axes) == 8 and all(axes.texts[0].get_text() == "no runs" for axes in empty.axes)
 
 
 def test_write_report_writes_all_four_files(tmp_path: Path) -> None:

@@ -829,24 +829,31 @@ def draw_curves(results: Sequence[TableResult], path: str | Path):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    panels = [(result, task) for result in results for task in result.tasks]
-    lines_per = [math.ceil(len(result.tasks) / PANELS_PER_LINE) for result in results]
-    n_lines, n_cols = max(1, sum(lines_per)), max(1, min(PANELS_PER_LINE, max((len(r.tasks) for r in results),
-                                                                            default=1)))
-    figure = Figure(figsize=(3.6 * n_cols, 2.9 * n_lines), layout="constrained")
+    tasks = [_plotted_tasks(result) for result in results]
+    panels = [(result, task) for result, shown in zip(results, tasks, strict=True) for task in shown]
+    lines_per = [math.ceil(len(shown) / PANELS_PER_LINE) for shown in tasks]
+    n_lines, n_cols = max(1, sum(lines_per)), max(1, min(PANELS_PER_LINE, max(map(len, tasks), default=1)))
+    single = len(panels) == 1  # one task (e.g. a grid shrunk with --tasks): a larger panel for its many rows
+    figure = Figure(figsize=(6.4, 4.0) if single else (3.6 * n_cols, 2.9 * n_lines), layout="constrained")
     FigureCanvasAgg(figure)
     if not panels:
         axes = figure.add_subplot(1, 1, 1)
         axes.text(0.5, 0.5, "no runs found", ha="center", va="center", transform=axes.transAxes)
         axes.set_axis_off()
     first_line = 0
-    for result, lines in zip(results, lines_per, strict=True):
-        for index, task in enumerate(result.tasks):
+    for result, lines, shown in zip(results, lines_per, tasks, strict=True):
+        for index, task in enumerate(shown):
             position = (first_line + index // PANELS_PER_LINE) * n_cols + index % PANELS_PER_LINE + 1
             _draw_panel(figure.add_subplot(n_lines, n_cols, position), result, task, len(results) > 1)
         first_line += lines
     _save_figure(figure, Path(path))
     return figure
+
+
+def _plotted_tasks(result: TableResult) -> tuple[str, ...]:
+    """The tasks that have runs (a shrunk reproduction shows only its own); all of them when none has."""
+    with_runs = tuple(task for task in result.tasks if any(row.cell(task).runs for row in result.rows))
+    return with_runs or result.tasks
 
 
 def _draw_panel(axes, result: TableResult, task: str, prefix: bool) -> None:
@@ -868,7 +875,7 @@ def _draw_panel(axes, result: TableResult, task: str, prefix: bool) -> None:
     axes.grid(alpha=0.3)
     if drawn:
         axes.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
-        axes.legend(fontsize=6, loc="lower right")
+        axes.legend(fontsize=6, loc="best")
     else:
         axes.text(0.5, 0.5, "no runs", ha="center", va="center", transform=axes.transAxes, color="0.5")
 
