@@ -145,7 +145,7 @@ def _add_run_options(parser: argparse.ArgumentParser, steps_default: int | None)
                              "off")
     parser.add_argument("--matmul", default="float32",
                         help="float32 (default) | bf16: matmul inputs rounded to bfloat16 with float32 accumulation, "
-                             "on AMX/AVX512-BF16 CPUs (and TF32/bf16 on CUDA); pays for large matmuls (Ant, many seeds)")
+                             "on AMX/AVX512-BF16 CPUs (and TF32/bf16 on CUDA); pays on large matmuls (Ant, many seeds)")
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
