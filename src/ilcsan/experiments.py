@@ -985,8 +985,8 @@ def cmd_reproduce(args) -> int:
     grid = expand_grid(spec, args.out, options_from_args(args), layout)
     from .training import _check_writable, validate_run
 
-    for run in grid.runs[:1]:  # a bad --matmul: one line before any worker starts (devices are the workers')
-        validate_run(dataclasses.replace(run.config, device="cpu"))
+    if grid.runs:  # a bad --matmul: one line before any worker starts (devices are checked by the workers)
+        validate_run(dataclasses.replace(grid.runs[0].config, device="cpu"))
 
     _check_writable(grid.root)  # an unwritable or full --out: one line before any worker starts
     summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
