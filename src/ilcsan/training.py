@@ -182,9 +182,11 @@ def set_matmul_precision(name: str) -> None:
 
 
 def use_compile(config: RunConfig) -> bool:
-    """Compile when asked, or (auto) for a spiking actor whose run is long enough to repay ~10-30 s of compiling."""
-    if config.compile == "auto":  # DAN's plain MLP runs faster eager (benchmarks/RESULTS.md)
-        return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast" and config.actor.network == "spiking"
+    """Compile when asked, or (auto) when the run is long enough to repay ~10-30 s of compiling.
+
+    Only a spiking actor is ever compiled (TD3Agent decides: DAN and the critic run faster eager)."""
+    if config.compile == "auto":
+        return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast"
     return config.compile == "on"
 
 
