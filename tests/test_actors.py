@@ -199,3 +199,26 @@ def test_bad_switch_values_are_user_errors(overrides, message):
 def test_unknown_preset():
     with pytest.raises(UserError, match="unknown actor preset"):
         actor_config("snn")
+
+
+@pytest.mark.parametrize("bias", [True, False])
+def test_ensemble_linear_gradients_equal_autograds_generic_rule_in_the_weights_layout(bias):
+    from ilcsan.layers import EnsembleLinear
+
+    layer = EnsembleLinear(3, 5, 4, bias=bias)
+    layer.reset_parameters([torch.Generator().manual_seed(seed) for seed in range(3)])
+    inputs = torch.randn(3, 2, 6, 5, generator=torch.Generator().manual_seed(4), requires_grad=True)
+    upstream = torch.randn(3, 2, 6, 4, generator=torch.Generator().manual_seed(5))
+    (layer(inputs) * upstream).sum().backward()
+    weight = layer.weight.detach().clone().requires_grad_()
+    bias_copy = layer.bias.detach().clone().requires_grad_() if bias else None
+    inputs_copy = inputs.detach().clone().requires_grad_()
+    flat = inputs_copy.reshape(3, -1, 5)
+    generic = torch.bmm(flat, weight.transpose(1, 2)) + (bias_copy.unsqueeze(1) if bias else 0)
+    (generic.reshape(3, 2, 6, 4) * upstream).sum().backward()
+    torch.testing.assert_close(layer(inputs), generic.reshape(3, 2, 6, 4))
+    torch.testing.assert_close(inputs.grad, inputs_copy.grad)
+    torch.testing.assert_close(layer.weight.grad, weight.grad)
+    assert layer.weight.grad.is_contiguous()  # no transposed view for AccumulateGrad to copy
+    if bias:
+        torch.testing.assert_close(layer.bias.grad, bias_copy.grad)

@@ -13,6 +13,7 @@ from ilcsan.neurons import (
     EncoderParams,
     clif_initial_state,
     clif_step,
+    clif_train,
     dynamic_initial_state,
     dynamic_step,
     heaviside_spike,
@@ -69,6 +70,39 @@ def test_clif_hard_reset_to_custom_reset_voltage():
     s, state = clif_step(torch.tensor([1.0]), state, params)
     # H = .75 * (-.2 + .2) - .2 + 1.0 = .8 -> spike, V = V_reset
     assert float(s) == 1.0 and float(state.voltage) == pytest.approx(-0.2)
+
+
+def test_clif_train_backward_by_hand():
+    # X = (.3, .3), L = S_1 + S_2. Forward: H_1 = .3 (S_1 = 0, V_1 = .3), C_2 = .45, H_2 = .675 (S_2 = 1).
+    # Both H within the surrogate window (|H - .5| < .5), so σ_1 = σ_2 = 1. Backward:
+    # δH_2 = 1, δC_2 = 1, δV_1 = α_V δH_2 = .75; δH_1 = 1 + .75 ((1 - S_1) + (0 - H_1)) = 1.525,
+    # δC_1 = δH_1 + α_C δC_2 = 2.025.
+    currents = torch.tensor([0.3, 0.3]).reshape(1, 2, 1, 1).requires_grad_()
+    spikes = clif_train(currents, CLIFParams())
+    assert spikes.flatten().tolist() == [0.0, 1.0]
+    spikes.sum().backward()
+    assert currents.grad.flatten().tolist() == pytest.approx([2.025, 1.0])
+
+
+@pytest.mark.parametrize("reset", [0.0, -0.2])
+def test_clif_train_equals_the_step_loop_in_values_and_surrogate_gradients(reset):
+    params = CLIFParams(reset=reset)
+    generator = torch.Generator().manual_seed(0)
+    currents = torch.rand(2, 5, 3, 7, generator=generator) * 0.8
+    upstream = torch.randn(2, 5, 3, 7, generator=generator)
+    loop_input = currents.clone().requires_grad_()
+    state = clif_initial_state(loop_input[:, 0], params)
+    looped = []
+    for t in range(5):
+        step_spikes, state = clif_step(loop_input[:, t], state, params)
+        looped.append(step_spikes)
+    (torch.stack(looped, dim=1) * upstream).sum().backward()
+    fused_input = currents.clone().requires_grad_()
+    fused = clif_train(fused_input, params)
+    (fused * upstream).sum().backward()
+    assert torch.equal(fused, torch.stack(looped, dim=1).detach())
+    assert 0 < float(fused.detach().mean()) < 1  # some neurons fire, some do not
+    torch.testing.assert_close(fused_input.grad, loop_input.grad, atol=1e-6, rtol=1e-5)
 
 
 def test_li_neuron_after_t_steps():

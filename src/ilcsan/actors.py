@@ -31,6 +31,7 @@ from .neurons import (
     DynamicParams,
     clif_initial_state,
     clif_step,
+    clif_train,
     dynamic_initial_state,
     dynamic_step,
     li_step,
@@ -58,6 +59,7 @@ class _Neuron(NamedTuple):
     step: object
     initial_state: object
     params: object
+    train: object = None  # all T steps of a layer at once, with a written-out backward (CLIF only)
 
 
 def _neuron(config: ActorConfig) -> _Neuron:
@@ -66,7 +68,7 @@ def _neuron(config: ActorConfig) -> _Neuron:
                        DynamicParams(alpha_current=config.alpha_c, threshold=config.v_th,
                                      surrogate_width=config.surrogate_width))
     return _Neuron(clif_step, clif_initial_state,
-                   CLIFParams(config.alpha_c, config.alpha_v, config.v_th, 0.0, config.surrogate_width))
+                   CLIFParams(config.alpha_c, config.alpha_v, config.v_th, 0.0, config.surrogate_width), clif_train)
 
 
 class _ActionScaling(nn.Module):
@@ -120,8 +122,10 @@ class SpikingActor(_ActionScaling):
         On the output layer the intra-layer current of step t (Eq. (10)) is added from t = 2 on.
         """
         step, params = self.neuron.step, self.neuron.params
-        state = self.neuron.initial_state(currents[:, 0], params)
         intra = self.intra if with_intra else None
+        if intra is None and self.neuron.train is not None:
+            return self.neuron.train(currents, params)
+        state = self.neuron.initial_state(currents[:, 0], params)
         weight = intra.masked_weight() if intra is not None else None
         bias = intra.masked_bias() if intra is not None else None
         spikes, intra_current = [], None

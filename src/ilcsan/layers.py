@@ -23,6 +23,33 @@ def uniform_(tensor: torch.Tensor, bound: float, generators: Sequence[torch.Gene
             tensor[k].copy_(values.mul_(2 * bound).sub_(bound))
 
 
+class _EnsembleAffine(torch.autograd.Function):
+    """y_k = x_k W_kᵀ + b_k for every ensemble member k, with the weight gradient built in W's own layout.
+
+    Autograd's generic rule for ``baddbmm(b, x, Wᵀ)`` produces ∂L/∂Wᵀ = xᵀ g and hands back its transpose, a
+    non-contiguous view that AccumulateGrad then copies into W's layout on every backward pass. Here
+    ∂L/∂W = gᵀ x is computed directly as a contiguous (K, out, in) tensor: the same numbers, one copy fewer
+    per layer (measured: most of the critic's backward time with 10 stacked seeds).
+    """
+
+    @staticmethod
+    def forward(ctx, flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:  # noqa: D102
+        ctx.save_for_backward(flat, weight)
+        ctx.has_bias = bias is not None
+        if bias is None:
+            return torch.bmm(flat, weight.transpose(1, 2))
+        return torch.baddbmm(bias.unsqueeze(1), flat, weight.transpose(1, 2))
+
+    @staticmethod
+    def backward(ctx, grad_output: torch.Tensor):  # noqa: D102
+        flat, weight = ctx.saved_tensors
+        needs_input, needs_weight, needs_bias = ctx.needs_input_grad
+        grad_input = torch.bmm(grad_output, weight) if needs_input else None
+        grad_weight = torch.bmm(grad_output.transpose(1, 2), flat) if needs_weight else None
+        grad_bias = grad_output.sum(dim=1) if ctx.has_bias and needs_bias else None
+        return grad_input, grad_weight, grad_bias
+
+
 class EnsembleLinear(nn.Module):
     """K fully-connected layers y = W_k x + b_k, weight (K, out, in), bias (K, out).
 
@@ -46,11 +73,7 @@ class EnsembleLinear(nn.Module):
         """``inputs`` (K, ..., in) → (K, ..., out); the middle dimensions are flattened for one bmm."""
         shape = inputs.shape
         flat = inputs.reshape(shape[0], -1, shape[-1])
-        weight_t = self.weight.transpose(1, 2)
-        if self.bias is None:
-            out = torch.bmm(flat, weight_t)
-        else:
-            out = torch.baddbmm(self.bias.unsqueeze(1), flat, weight_t)
+        out = _EnsembleAffine.apply(flat, self.weight, self.bias)
         return out.reshape(*shape[:-1], self.out_features)
 
     def extra_repr(self) -> str:
