@@ -5,7 +5,8 @@ What it measures, on this machine, in this order:
   2. environment steps per second including TD3 updates, for DAN, PopSAN and ILC-SAN on Hopper and Ant,
      with the reference engine (Algorithm 1's time-step loop, eager, as the authors' code) and the fast
      engine (layer-major, torch.compile of the spiking actor, fused Adam), in float32 and with bf16 matmuls
-     (``--matmul bf16``: AMX on this CPU), as a fraction of the float32 matmul limit;
+     (``--matmul bf16``: AMX on this CPU), as a fraction of the float32 matmul limit in two ways: of the
+     GEMM peak, and of the step's own matmul-only floor (its recorded matrix products replayed back to back);
   3. Stable-Baselines3's TD3 (MLP actor 256-256, batch 100, one update per step) when it is installed;
   4. K seeds trained together in one process vs the same cores running separate single-seed processes;
   5. batch-1 action latency of ``Policy.predict``.
@@ -80,6 +81,58 @@ def td3_step_flops(preset: str, state_dim: int, action_dim: int, td3: TD3Config)
     update = actor + critic + 3 * critic  # target actor, target critics, critic forward + backward
     update += (3 * actor + 3 * critic) / td3.policy_delay  # actor forward + backward through the critic
     return update + actor_forward_flops(preset, state_dim, action_dim, 1)
+
+
+MATMULS = ("aten::bmm", "aten::baddbmm", "aten::mm", "aten::addmm")
+
+
+def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, matmul: str = "float32",
+                 repeats: int = 50) -> float:
+    """Steps/s if a training step did nothing but its matrix products: the floor no engine can beat.
+
+    Records the shapes of every matmul of two TD3 updates (one without and one with the delayed actor
+    update) and one action with torch.profiler, then replays exactly those products back to back.
+    """
+    from torch.profiler import ProfilerActivity, profile
+
+    from ilcsan.td3 import TD3Agent
+    from ilcsan.training import set_matmul_precision
+
+    state_dim, action_dim = TASK_SIZES[task]
+    torch.set_num_threads(threads)
+    set_matmul_precision(matmul)
+    k = len(seeds)
+    agent = TD3Agent(actor_config(preset), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
+                     [0.0] * action_dim, seeds)
+    generator = torch.Generator().manual_seed(0)
+    batch = {"obs": torch.randn(k, 100, state_dim, generator=generator),
+             "next_obs": torch.randn(k, 100, state_dim, generator=generator),
+             "action": torch.rand(k, 100, action_dim, generator=generator) * 2 - 1,
+             "reward": torch.randn(k, 100, generator=generator), "terminal": torch.zeros(k, 100)}
+    for _ in range(3):
+        agent.update(batch)  # leaves updates odd: the two profiled updates are one plain, one delayed
+    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as recorded:
+        agent.update(batch)
+        agent.update(batch)
+        agent.act(np.zeros((k, state_dim), dtype=np.float32))
+    products = []
+    for event in recorded.events():
+        if event.name in MATMULS and (event.cpu_parent is None or event.cpu_parent.name not in MATMULS):
+            shapes = [shape for shape in event.input_shapes if shape]
+            products.append((getattr(torch, event.name.split("::")[1]), [torch.randn(*shape) for shape in shapes[:3]]))
+
+    def replay() -> None:
+        for function, operands in products:
+            function(*operands)
+
+    for _ in range(5):
+        replay()
+    start = time.perf_counter()
+    for _ in range(repeats):
+        replay()
+    seconds_per_step = (time.perf_counter() - start) / repeats / 2
+    set_matmul_precision("float32")
+    return 1.0 / seconds_per_step
 
 
 def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], threads: int, steps: int,
@@ -181,9 +234,9 @@ def main() -> None:
          f"{peak_n:.0f} GFLOP/s ({args.threads} threads).")
     emit()
     emit("| task | actor | reference engine, eager (steps/s) | fast engine, eager | fast engine, compiled | "
-         "compiled / reference | compiled, bf16 matmuls | bf16 / reference | GFLOP per step | "
-         "compiled (float32) as % of matmul limit |")
-    emit("|---|---|---|---|---|---|---|---|---|---|")
+         "compiled / reference | compiled, bf16 matmuls | bf16 / reference | matmul-only floor (float32) | "
+         "compiled as % of floor | GFLOP per step | compiled as % of GEMM peak |")
+    emit("|---|---|---|---|---|---|---|---|---|---|---|---|")
     fast_speeds, bf16_speeds = {}, {}
     for task in args.tasks.split(","):
         state_dim, action_dim = TASK_SIZES[task]
@@ -193,11 +246,12 @@ def main() -> None:
             fast = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup)
             bf16 = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup, matmul="bf16")
             fast_speeds[(task, preset)], bf16_speeds[(task, preset)] = fast, bf16
+            floor = matmul_floor(task, preset, (0,), args.threads)
             flops = td3_step_flops(preset, state_dim, action_dim, td3)
             limit = peak_n * 1e9 / flops
             emit(f"| {task} | {preset} | {reference:.0f} | {eager:.0f} | {fast:.0f} | {fast / reference:.2f}× | "
-                 f"{bf16:.0f} | {bf16 / reference:.2f}× | {flops / 1e9:.3f} | "
-                 f"{100 * fast / limit:.0f}% of {limit:.0f} |")
+                 f"{bf16:.0f} | {bf16 / reference:.2f}× | {floor:.0f} | {100 * fast / floor:.0f}% | "
+                 f"{flops / 1e9:.3f} | {100 * fast / limit:.0f}% of {limit:.0f} |")
     emit()
     sb3 = sb3_speed("Hopper", args.threads, args.steps, args.warmup)
     if sb3 is None:
@@ -214,9 +268,11 @@ def main() -> None:
         together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), args.threads, args.steps // 2,
                                       args.warmup, matmul=matmul)
         separate = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup, matmul)
+        floor = k * matmul_floor("Hopper", "ilc-san", tuple(range(k)), args.threads, matmul)
         emit(f"Many seeds, ILC-SAN on Hopper, {matmul} matmuls: {k} seeds in one process {together:.0f} steps/s "
-             f"in aggregate; {cores} separate single-seed processes (1 thread each) {separate:.0f} steps/s in "
-             f"aggregate: {together / separate:.2f}× faster together.")
+             f"in aggregate ({100 * together / floor:.0f}% of its matmul-only floor, {floor:.0f}); {cores} separate "
+             f"single-seed processes (1 thread each) {separate:.0f} steps/s in aggregate: "
+             f"{together / separate:.2f}× faster together.")
         emit()
     emit()
     for task in args.tasks.split(","):

@@ -98,8 +98,10 @@ class TD3Agent:
             prepare_compilation()
         # The networks as called in the hot path: compiled graphs (one per input shape) or the modules themselves.
         wrap = (lambda module: torch.compile(module, dynamic=False)) if self.compiled else (lambda module: module)
-        self.actor_fn, self.actor_target_fn = wrap(self.actor), wrap(self.actor_target)
-        self.critic_fn, self.critic_target_fn = self.critic, self.critic_target
+        self.actor_fn = wrap(self.actor)
+        self.critic_fn = self.critic
+        # The target computation has no backward pass, so it compiles whole (target actor, noise, target critics).
+        self.target_values_fn = wrap(self.target_values)
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)
@@ -114,21 +116,26 @@ class TD3Agent:
         return self.actor_fn(state).squeeze(1).cpu().numpy()
 
     # ------------------------------------------------------------------------------ learning
-    def _target_noise(self, shape: tuple[int, ...]) -> torch.Tensor:
-        noise = torch.stack([torch.randn(shape[1:], generator=g, device=self.device)
-                             for g in self.noise_generators])
+    def _standard_noise(self, batch_size: int) -> torch.Tensor:
+        """ε/σ̃ ~ N(0, 1) of shape (K, B, M), each seed from its own generator."""
+        shape = (batch_size, len(self.scale))
+        return torch.stack([torch.randn(shape, generator=g, device=self.device) for g in self.noise_generators])
+
+    def target_values(self, next_obs: torch.Tensor, standard_noise: torch.Tensor, reward: torch.Tensor,
+                      terminal: torch.Tensor) -> torch.Tensor:
+        """y = r + γ (1 − terminal) min_j Q'_j(s', clip(π'(s') + clip(σ̃ ε, −c, c), low, high)), shape (K, B)."""
         clip = self.td3.noise_clip
-        return (noise * self.td3.target_noise).clamp(-clip, clip) * self.scale
+        noise = (standard_noise * self.td3.target_noise).clamp(-clip, clip) * self.scale
+        next_action = self.actor_target(next_obs) + noise
+        next_action = torch.maximum(torch.minimum(next_action, self.offset + self.scale), self.offset - self.scale)
+        target_q = self.critic_target(next_obs, next_action).min(dim=1).values
+        return reward + self.td3.gamma * (1.0 - terminal) * target_q
 
     def critic_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Σ_k Σ_j mean_b (Q_j(s, a) − y)², with y from the target actor and the min of the target twins."""
         with torch.no_grad():
-            next_action = self.actor_target_fn(batch["next_obs"])
-            next_action = next_action + self._target_noise(tuple(next_action.shape))
-            next_action = torch.maximum(torch.minimum(next_action, self.offset + self.scale),
-                                        self.offset - self.scale)
-            target_q = self.critic_target_fn(batch["next_obs"], next_action).min(dim=1).values
-            target = batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * target_q
+            noise = self._standard_noise(batch["next_obs"].shape[1])
+            target = self.target_values_fn(batch["next_obs"], noise, batch["reward"], batch["terminal"])
         q_values = self.critic_fn(batch["obs"], batch["action"])
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
