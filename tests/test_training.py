@@ -70,14 +70,26 @@ def _random_batch(rng, seeds, batch, state_dim, action_dim):
     return {k: v.astype(np.float32) for k, v in arrays.items()}
 
 
+def test_first_critic_equals_the_first_twin_of_every_seed():
+    from ilcsan.td3 import TwinCritic
+
+    critic = TwinCritic(3, 2, [8, 8], seeds=(0, 1, 2))
+    generator = torch.Generator().manual_seed(0)
+    state, action = torch.randn(3, 5, 3, generator=generator), torch.randn(3, 5, 2, generator=generator)
+    both = critic(state, action)
+    assert not torch.allclose(both[:, 0], both[:, 1])
+    torch.testing.assert_close(critic.first(state, action), both[:, 0])
+
+
 def test_compiled_agent_updates_like_the_eager_agent():
     """torch.compile of the spiking actor changes nothing but speed: same actions, same weights after updates.
 
-    The critic is never compiled (plain MLP; faster eager, see td3.py)."""
+    The trained critic is never compiled (plain MLP; faster eager, see td3.py); the no-grad target values are."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
     eager = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
     compiled = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
-    assert compiled.compiled and compiled.critic_fn is compiled.critic and compiled.actor_fn is not compiled.actor
+    assert compiled.compiled and compiled.actor_fn is not compiled.actor
+    assert compiled.target_values_fn != compiled.target_values and eager.target_values_fn == eager.target_values
     rng = np.random.default_rng(1)
     for _ in range(4):  # two delayed actor updates
         arrays = _random_batch(rng, 1, 16, 3, 2)

@@ -69,11 +69,17 @@ class EnsembleLinear(nn.Module):
         if self.bias is not None:
             uniform_(self.bias, bound, generators)
 
-    def forward(self, inputs: torch.Tensor) -> torch.Tensor:
-        """``inputs`` (K, ..., in) → (K, ..., out); the middle dimensions are flattened for one bmm."""
+    def forward(self, inputs: torch.Tensor, members: slice | None = None) -> torch.Tensor:
+        """``inputs`` (K, ..., in) → (K, ..., out); the middle dimensions are flattened for one bmm.
+
+        ``members`` selects a subset of the ensemble (then K is the subset's size).
+        """
         shape = inputs.shape
         flat = inputs.reshape(shape[0], -1, shape[-1])
-        out = _EnsembleAffine.apply(flat, self.weight, self.bias)
+        weight, bias = self.weight, self.bias
+        if members is not None:
+            weight, bias = weight[members], (bias[members] if bias is not None else None)
+        out = _EnsembleAffine.apply(flat, weight, bias)
         return out.reshape(*shape[:-1], self.out_features)
 
     def extra_repr(self) -> str:
@@ -93,10 +99,10 @@ class EnsembleMLP(nn.Module):
         for layer in self.layers:
             layer.reset_parameters(generators)
 
-    def forward(self, inputs: torch.Tensor) -> torch.Tensor:
+    def forward(self, inputs: torch.Tensor, members: slice | None = None) -> torch.Tensor:
         hidden = inputs
         for index, layer in enumerate(self.layers):
-            hidden = layer(hidden)
+            hidden = layer(hidden, members)
             if index < len(self.layers) - 1:
                 hidden = torch.relu(hidden)
         return hidden

@@ -46,6 +46,10 @@ class TwinCritic(nn.Module):
         twin = inputs.unsqueeze(1).expand(k, 2, b, d).reshape(2 * k, b, d)
         return self.mlp(twin).reshape(k, 2, b)
 
+    def first(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Q_1 only (the actor's objective): (K, B, N), (K, B, M) → (K, B), half the work of ``forward``."""
+        return self.mlp(torch.cat([state, action], dim=-1), members=slice(0, None, 2)).squeeze(-1)
+
 
 COMPILE_RECOMPILE_LIMIT = 64
 
@@ -99,7 +103,6 @@ class TD3Agent:
         # The networks as called in the hot path: compiled graphs (one per input shape) or the modules themselves.
         wrap = (lambda module: torch.compile(module, dynamic=False)) if self.compiled else (lambda module: module)
         self.actor_fn = wrap(self.actor)
-        self.critic_fn = self.critic
         # The target computation has no backward pass, so it compiles whole (target actor, noise, target critics).
         self.target_values_fn = wrap(self.target_values)
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
@@ -136,13 +139,12 @@ class TD3Agent:
         with torch.no_grad():
             noise = self._standard_noise(batch["next_obs"].shape[1])
             target = self.target_values_fn(batch["next_obs"], noise, batch["reward"], batch["terminal"])
-        q_values = self.critic_fn(batch["obs"], batch["action"])
+        q_values = self.critic(batch["obs"], batch["action"])
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
     def actor_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Σ_k −mean_b Q_1(s, π(s))."""
-        q_values = self.critic_fn(batch["obs"], self.actor_fn(batch["obs"]))
-        return -q_values[:, 0].mean(dim=-1).sum()
+        return -self.critic.first(batch["obs"], self.actor_fn(batch["obs"])).mean(dim=-1).sum()
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:
         """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps)."""
