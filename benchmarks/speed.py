@@ -83,20 +83,28 @@ def td3_step_flops(preset: str, state_dim: int, action_dim: int, td3: TD3Config)
     return update + actor_forward_flops(preset, state_dim, action_dim, 1)
 
 
-MATMULS = ("aten::bmm", "aten::baddbmm", "aten::mm", "aten::addmm")
-
-
 def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, matmul: str = "float32",
                  repeats: int = 50) -> float:
     """Steps/s if a training step did nothing but its matrix products: the floor no engine can beat.
 
-    Records the shapes of every matmul of two TD3 updates (one without and one with the delayed actor
-    update) and one action with torch.profiler, then replays exactly those products back to back.
+    Records the operand shapes of every matmul of two TD3 updates (one without and one with the delayed
+    actor update) and one action, at the dispatcher (forward and backward), then replays exactly those
+    products back to back.
     """
-    from torch.profiler import ProfilerActivity, profile
+    from torch.utils._python_dispatch import TorchDispatchMode
 
     from ilcsan.td3 import TD3Agent
     from ilcsan.training import set_matmul_precision
+
+    matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
+               torch.ops.aten.addmm.default}
+    products = []
+
+    class RecordMatmuls(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            if func in matmuls:
+                products.append((func, [torch.randn(arg.shape) for arg in args if isinstance(arg, torch.Tensor)]))
+            return func(*args, **(kwargs or {}))
 
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(threads)
@@ -109,17 +117,11 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, m
              "next_obs": torch.randn(k, 100, state_dim, generator=generator),
              "action": torch.rand(k, 100, action_dim, generator=generator) * 2 - 1,
              "reward": torch.randn(k, 100, generator=generator), "terminal": torch.zeros(k, 100)}
-    for _ in range(3):
-        agent.update(batch)  # leaves updates odd: the two profiled updates are one plain, one delayed
-    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as recorded:
+    agent.update(batch)  # leaves the update count odd: of the two recorded updates, the second is delayed
+    with RecordMatmuls():
         agent.update(batch)
         agent.update(batch)
         agent.act(np.zeros((k, state_dim), dtype=np.float32))
-    products = []
-    for event in recorded.events():
-        if event.name in MATMULS and (event.cpu_parent is None or event.cpu_parent.name not in MATMULS):
-            shapes = [shape for shape in event.input_shapes if shape]
-            products.append((getattr(torch, event.name.split("::")[1]), [torch.randn(*shape) for shape in shapes[:3]]))
 
     def replay() -> None:
         for function, operands in products:
@@ -195,13 +197,16 @@ def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
     return float(np.median(times) * 1e6)
 
 
-def separate_runs_speed(task: str, preset: str, processes: int, steps: int, warmup: int, matmul: str) -> float:
-    """Aggregate steps/s of ``processes`` single-seed runs at once, one torch thread each."""
-    command = [sys.executable, __file__, "--worker", json.dumps({"task": task, "preset": preset, "steps": steps,
-                                                                 "warmup": warmup, "matmul": matmul})]
+def separate_runs_speed(task: str, preset: str, processes: int, steps: int, warmup: int, matmul: str,
+                        seeds_per_process: int = 1) -> float:
+    """Aggregate steps/s of ``processes`` runs at once, one torch thread each, each of ``seeds_per_process``
+    stacked seeds (``ilcsan reproduce`` runs its workers this way)."""
+    job = {"task": task, "preset": preset, "steps": steps, "warmup": warmup, "matmul": matmul,
+           "seeds": seeds_per_process}
+    command = [sys.executable, __file__, "--worker", json.dumps(job)]
     workers = [subprocess.Popen(command, stdout=subprocess.PIPE, text=True) for _ in range(processes)]
     speeds = [float(worker.communicate()[0].strip().splitlines()[-1]) for worker in workers]
-    return sum(speeds)
+    return seeds_per_process * sum(speeds)
 
 
 def main() -> None:
@@ -217,8 +222,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.worker:
         job = json.loads(args.worker)
-        print(training_speed(job["task"], job["preset"], "fast", (0,), 1, job["steps"], job["warmup"],
-                             matmul=job["matmul"]))
+        print(training_speed(job["task"], job["preset"], "fast", tuple(range(job["seeds"])), 1, job["steps"],
+                             job["warmup"], matmul=job["matmul"]))
         return
 
     lines = []
@@ -268,11 +273,14 @@ def main() -> None:
         together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), args.threads, args.steps // 2,
                                       args.warmup, matmul=matmul)
         separate = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup, matmul)
+        split = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup, matmul,
+                                    seeds_per_process=k // cores)
         floor = k * matmul_floor("Hopper", "ilc-san", tuple(range(k)), args.threads, matmul)
         emit(f"Many seeds, ILC-SAN on Hopper, {matmul} matmuls: {k} seeds in one process {together:.0f} steps/s "
              f"in aggregate ({100 * together / floor:.0f}% of its matmul-only floor, {floor:.0f}); {cores} separate "
              f"single-seed processes (1 thread each) {separate:.0f} steps/s in aggregate: "
-             f"{together / separate:.2f}× faster together.")
+             f"{together / separate:.2f}× faster together; {cores} processes of {k // cores} stacked seeds "
+             f"(1 thread each, as `ilcsan reproduce` runs) {split:.0f} steps/s: {split / separate:.2f}×.")
         emit()
     emit()
     for task in args.tasks.split(","):
