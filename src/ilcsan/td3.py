@@ -100,8 +100,8 @@ class TD3Agent:
         self.compiled = compile and actor_config.network == "spiking"
         if self.compiled:
             prepare_compilation()
-        # The networks as called in the hot path: compiled graphs (one per input shape) or the modules themselves.
-        wrap = (lambda module: torch.compile(module, dynamic=False)) if self.compiled else (lambda module: module)
+        # What the hot path calls: compiled graphs (one per input shape) or the modules and methods themselves.
+        wrap = (lambda function: torch.compile(function, dynamic=False)) if self.compiled else (lambda f: f)
         self.actor_fn = wrap(self.actor)
         # The target computation has no backward pass, so it compiles whole (target actor, noise, target critics).
         self.target_values_fn = wrap(self.target_values)
