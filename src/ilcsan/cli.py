@@ -141,8 +141,8 @@ def _add_run_options(parser: argparse.ArgumentParser, steps_default: int | None)
     parser.add_argument("--threads", type=_positive_int, default=None,
                         help="torch threads (default: torch's own; use 1 when several runs share the cores)")
     parser.add_argument("--compile", default="auto",
-                        help="torch.compile the spiking actor (critic and DAN run eager, faster): auto (default: on "
-                             "for runs of 50000 steps or more) | on | off")
+                        help="torch.compile the spiking actor and the no-grad target values (the trained critic and "
+                             "DAN run eager, faster): auto (default: on for runs of 50000 steps or more) | on | off")
     parser.add_argument("--matmul", default="float32",
                         help="float32 (default) | bf16: matmul inputs rounded to bfloat16 with float32 accumulation, "
                              "on AMX/AVX512-BF16 CPUs (and TF32/bf16 on CUDA); pays on large matmuls (Ant, many seeds)")

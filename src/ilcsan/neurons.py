@@ -85,8 +85,7 @@ def clif_step(
     """
     current, charged = clif_charge(input_current, state, params)
     spikes = heaviside_spike(charged - params.threshold, params.surrogate_width)
-    voltage = charged * (1.0 - spikes) + params.reset * spikes
-    return spikes, CLIFState(current, voltage)
+    return spikes, CLIFState(current, clif_reset(charged, spikes, params))
 
 
 def clif_charge(input_current: torch.Tensor, state: CLIFState,
@@ -96,6 +95,11 @@ def clif_charge(input_current: torch.Tensor, state: CLIFState,
     return current, params.alpha_voltage * (state.voltage - params.reset) + params.reset + current
 
 
+def clif_reset(charged: torch.Tensor, spikes: torch.Tensor, params: CLIFParams) -> torch.Tensor:
+    """Hard reset, Eq. (3): V_t = H_t (1 − S_t) + V_reset S_t."""
+    return charged * (1.0 - spikes) + params.reset * spikes
+
+
 def _clif_train_forward(currents: torch.Tensor, params: CLIFParams) -> tuple[torch.Tensor, torch.Tensor]:
     """Currents X (K, T, B, D) → spikes S and charged voltages H, both (K, T, B, D), by :func:`clif_charge`."""
     state = clif_initial_state(currents[:, 0], params)
@@ -103,7 +107,7 @@ def _clif_train_forward(currents: torch.Tensor, params: CLIFParams) -> tuple[tor
     for t in range(currents.shape[1]):
         current, charge = clif_charge(currents[:, t], state, params)
         fired = (charge - params.threshold >= 0).to(currents.dtype)
-        state = CLIFState(current, charge * (1.0 - fired) + params.reset * fired)
+        state = CLIFState(current, clif_reset(charge, fired, params))
         spikes.append(fired)
         charged.append(charge)
     return torch.stack(spikes, dim=1), torch.stack(charged, dim=1)

@@ -184,7 +184,8 @@ def set_matmul_precision(name: str) -> None:
 def use_compile(config: RunConfig) -> bool:
     """Compile when asked, or (auto) when the run is long enough to repay ~10-30 s of compiling.
 
-    Only a spiking actor is ever compiled (TD3Agent decides: DAN and the critic run faster eager)."""
+    Only spiking-actor agents are compiled, and only the actor and the no-grad target values (TD3Agent decides:
+    DAN and the trained critic run faster eager)."""
     if config.compile == "auto":
         return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast"
     return config.compile == "on"
