@@ -45,8 +45,8 @@ def calibrated_policy(task: str, seed: int = 0):
     """A random ILC-SAN with the mean rate of its hidden layers near the paper's FC2 rate for ``task``."""
     from spiking_policies import observations, random_policy
 
-    from ilcsan.energy import measure_firing_rates
-    from ilcsan.paper import FIRING_RATES
+    from ilcsan.analysis.energy import measure_firing_rates
+    from ilcsan.analysis.paper import FIRING_RATES
 
     state_dim, action_dim = TASKS[task]
     target = FIRING_RATES["ilc-san"][task].fc2
@@ -62,7 +62,7 @@ def calibrated_policy(task: str, seed: int = 0):
 def trained_policy(run: str, seed: int = 0):
     """A trained run's policy and the observations of one deterministic episode."""
     import ilcsan
-    from ilcsan.evaluation import run_episodes
+    from ilcsan.rl.evaluation import run_episodes
 
     policy = ilcsan.load(run)
     seen = []
@@ -76,10 +76,10 @@ def trained_policy(run: str, seed: int = 0):
 
 
 def measure(label: str, policy, inputs, calls: int) -> dict:
+    from ilcsan.analysis.energy import measure_firing_rates
     from ilcsan.deploy import DeployedActor
-    from ilcsan.energy import measure_firing_rates
-    from ilcsan.export import bundle_arrays, bundle_meta
-    from ilcsan.quantize import quantize_bundle
+    from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
+    from ilcsan.deploy.quantize import quantize_bundle
 
     arrays, meta = bundle_arrays(policy), bundle_meta(policy)
     runtime = DeployedActor.from_arrays(arrays, meta)

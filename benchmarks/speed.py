@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ilcsan.config import TD3Config, actor_config
-from ilcsan.training import RunConfig, Trainer
+from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.rl.training import Trainer
 
 TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8)}
 
@@ -93,8 +93,8 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, m
     """
     from torch.utils._python_dispatch import TorchDispatchMode
 
-    from ilcsan.td3 import TD3Agent
-    from ilcsan.training import set_matmul_precision
+    from ilcsan.rl.td3 import TD3Agent
+    from ilcsan.rl.training import set_matmul_precision
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -164,7 +164,7 @@ def sb3_speed(task: str, threads: int, steps: int, warmup: int) -> float | None:
         from stable_baselines3 import TD3
     except ImportError:
         return None
-    from ilcsan.tasks import make_env
+    from ilcsan.rl.tasks import make_env
 
     torch.set_num_threads(threads)
     env = make_env(task, seed=0)
@@ -177,8 +177,8 @@ def sb3_speed(task: str, threads: int, steps: int, warmup: int) -> float | None:
 
 
 def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
-    from ilcsan.actors import build_actor
-    from ilcsan.policy import Policy
+    from ilcsan.runs.policy import Policy
+    from ilcsan.snn.actor import build_actor
 
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(1)

@@ -20,8 +20,8 @@ def _deterministic_torch():
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
     """A tiny ILC-SAN run on Pendulum (300 steps): a real run directory with policy and checkpoint."""
-    from ilcsan.config import TD3Config, actor_config
-    from ilcsan.training import RunConfig, train
+    from ilcsan.config import RunConfig, TD3Config, actor_config
+    from ilcsan.rl.training import train
 
     out = tmp_path_factory.mktemp("runs") / "pendulum"
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=300, eval_every=150, eval_episodes=1,

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ilcsan.actors import build_actor
 from ilcsan.config import actor_config
-from ilcsan.policy import Policy
+from ilcsan.runs.policy import Policy
+from ilcsan.snn.actor import build_actor
 
 
 def random_policy(preset: str = "ilc-san", state_dim: int = 11, action_dim: int = 3, seed: int = 0,

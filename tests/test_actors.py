@@ -7,11 +7,11 @@ import itertools
 import pytest
 import torch
 
-from ilcsan.actors import SpikingActor, build_actor
+from ilcsan.config import INTRA_MASKS as INTRA_VARIANTS
 from ilcsan.config import PRESETS, actor_config
-from ilcsan.decoders import select_statistic
 from ilcsan.errors import UserError
-from ilcsan.intra import INTRA_VARIANTS
+from ilcsan.snn.actor import SpikingActor, build_actor
+from ilcsan.snn.decoders import select_statistic
 
 
 def small(preset: str = "ilc-san", **overrides):
@@ -203,7 +203,7 @@ def test_unknown_preset():
 
 @pytest.mark.parametrize("bias", [True, False])
 def test_ensemble_linear_gradients_equal_autograds_generic_rule_in_the_weights_layout(bias):
-    from ilcsan.layers import EnsembleLinear
+    from ilcsan.snn.ensemble import EnsembleLinear
 
     layer = EnsembleLinear(3, 5, 4, bias=bias)
     layer.reset_parameters([torch.Generator().manual_seed(seed) for seed in range(3)])

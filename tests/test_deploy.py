@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from spiking_policies import HAND_SOP, hand_made_policy, observations, random_policy
 
-import ilcsan.deploy
+import ilcsan.deploy.runtime
+from ilcsan.analysis.energy import energy_report, measure_firing_rates
+from ilcsan.config import INTRA_MASKS as INTRA_VARIANTS
 from ilcsan.deploy import DeployedActor
-from ilcsan.energy import energy_report, measure_firing_rates
+from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
 from ilcsan.errors import UserError
-from ilcsan.export import bundle_arrays, bundle_meta, export_npz
-from ilcsan.intra import INTRA_VARIANTS
 
-DEPLOY_FILE = Path(ilcsan.deploy.__file__)
+DEPLOY_FILE = Path(ilcsan.deploy.runtime.__file__)
 TOLERANCE = 1e-4
 
 FULLY_SPIKING = [

@@ -10,13 +10,12 @@ import numpy as np
 import pytest
 from spiking_policies import HAND_RATES, HAND_SOP, hand_made_policy, observations, random_policy
 
-from ilcsan.energy import (
+from ilcsan.analysis.energy import (
     CMOS_45NM,
     GROUP_FC,
     INTRA_FC,
     PAPER_COSTS,
     TASK_ORDER,
-    cmd_energy,
     count_operations,
     energy_report,
     energy_table,
@@ -26,8 +25,9 @@ from ilcsan.energy import (
     paper_report,
     synaptic_layers,
 )
+from ilcsan.analysis.paper import ENERGY_NJ, FIRING_RATES, OP_COUNTS
+from ilcsan.cli.grid_commands import cmd_energy
 from ilcsan.errors import UserError
-from ilcsan.paper import ENERGY_NJ, FIRING_RATES, OP_COUNTS
 
 T = 5
 PAPER_LAYERS = ("fc1", "fc2", "fc3", "group_fc", "intra_fc")

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from ilcsan import experiments
 from ilcsan.cli import main
 from ilcsan.errors import UserError
-from ilcsan.experiments import (
+from ilcsan.experiments import coordinator as experiments
+from ilcsan.experiments.coordinator import (
     GridOptions,
     Job,
     RunState,
@@ -27,8 +27,8 @@ from ilcsan.experiments import (
     run_grid,
     run_state,
 )
-from ilcsan.grids import TABLES, load_grid
-from ilcsan.training import Trainer, train
+from ilcsan.experiments.tables import TABLES, load_grid
+from ilcsan.rl.training import Trainer, train
 
 TINY_TD3 = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
 TINY_GRID = """

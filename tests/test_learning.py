@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from ilcsan.config import TD3Config, actor_config
-from ilcsan.evaluation import random_policy_return
-from ilcsan.training import RunConfig, set_matmul_precision, train
+from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.rl.evaluation import random_policy_return
+from ilcsan.rl.training import set_matmul_precision, train
 
 THRESHOLD = -600.0  # Pendulum-v1: random actions score about -1200, a swinging-up policy above -400
 

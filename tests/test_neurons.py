@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from ilcsan.neurons import (
+from ilcsan.snn.neurons import (
     CLIFParams,
     DynamicParams,
     EncoderParams,
@@ -150,7 +150,7 @@ def test_dynamic_neuron_follows_its_equations():
 
 
 def test_gaussian_receptive_fields():
-    from ilcsan.encoders import Encoder
+    from ilcsan.snn.encoders import Encoder
 
     encoder = Encoder("pop", 1, 2, 10, 5)
     encoder.reset_parameters([torch.Generator()])

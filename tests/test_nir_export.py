@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 from spiking_policies import observations, random_policy
 
-from ilcsan.errors import UserError
-from ilcsan.nir_export import (
+from ilcsan.deploy.nir import (
     build_graph,
     cubalif_parameters,
     export_nir,
@@ -19,6 +18,7 @@ from ilcsan.nir_export import (
     read_host,
     simulate_nir,
 )
+from ilcsan.errors import UserError
 
 ROUND_TRIP_TOLERANCE = 1e-5
 
@@ -147,7 +147,7 @@ def test_export_refusals(tmp_path):
 
 def test_export_command_writes_nir_for_a_trained_run(trained_run, tmp_path):
     from ilcsan import load
-    from ilcsan.export import export
+    from ilcsan.deploy.bundle import export
 
     path = export(trained_run, "nir", tmp_path / "pendulum.nir")
     graph = nir.read(path)

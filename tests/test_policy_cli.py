@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import ilcsan
-from ilcsan.cli import main, parse_seeds
+from ilcsan.cli import main
+from ilcsan.cli.options import parse_seeds
 from ilcsan.errors import UserError
 
 

@@ -39,12 +39,12 @@ from hypothesis.extra import numpy as hnp
 import ilcsan
 from ilcsan.cli import build_parser, main
 from ilcsan.errors import UserError
-from ilcsan.grids import (
+from ilcsan.experiments.tables import (
     DECODERS,
     ENCODERS,
     INTRA_VARIANTS,
     OVERRIDE_KEYS,
-    PRESETS,
+    PRESET_NAMES,
     TableSpec,
     grid_from_dict,
     load_grid,
@@ -181,7 +181,7 @@ class _StubAgent:
 
 def _stub_train(config, out, resume=False, progress=None, log=print):
     """Everything `train` checks and prepares (settings, folders, lock, environments, memory), no loop."""
-    from ilcsan.training import Trainer
+    from ilcsan.rl.training import Trainer
 
     trainer = Trainer(config, out, resume=resume, progress=progress, log=lambda *_: None)
     trainer.close()
@@ -190,7 +190,7 @@ def _stub_train(config, out, resume=False, progress=None, log=print):
 
 def _one_action_episodes(act, task, episodes, seed=0):
     """Stands in for evaluation.run_episodes: the real environment and one real action, not whole episodes."""
-    from ilcsan.tasks import make_env
+    from ilcsan.rl.tasks import make_env
 
     env = make_env(task)
     try:
@@ -203,7 +203,7 @@ def _one_action_episodes(act, task, episodes, seed=0):
 
 
 def _stub_grid(grid, *_args, **_kwargs):
-    from ilcsan.experiments import GridSummary
+    from ilcsan.experiments.coordinator import GridSummary
 
     assert grid.runs
     return GridSummary(len(grid.runs), 0, 0, (), False, False, None, 0.0)
@@ -222,17 +222,17 @@ def workspace(trained_run, tmp_path_factory):
 
 @pytest.fixture
 def stubbed(monkeypatch, workspace):
-    import ilcsan.evaluation
-    import ilcsan.experiments
-    import ilcsan.report
-    import ilcsan.training
+    import ilcsan.analysis.report
+    import ilcsan.experiments.coordinator
+    import ilcsan.rl.evaluation
+    import ilcsan.rl.training
 
-    monkeypatch.setattr(ilcsan.training, "TD3Agent", _StubAgent)
-    monkeypatch.setattr(ilcsan.training, "train", _stub_train)
-    monkeypatch.setattr(ilcsan.evaluation, "run_episodes", _one_action_episodes)
-    monkeypatch.setattr(ilcsan.evaluation, "random_policy_return", lambda *_a, **_k: 0.0)
-    monkeypatch.setattr(ilcsan.report, "plot_curves", lambda *_a, **_k: None)
-    monkeypatch.setattr(ilcsan.experiments, "run_grid", _stub_grid)
+    monkeypatch.setattr(ilcsan.rl.training, "TD3Agent", _StubAgent)
+    monkeypatch.setattr(ilcsan.rl.training, "train", _stub_train)
+    monkeypatch.setattr(ilcsan.rl.evaluation, "run_episodes", _one_action_episodes)
+    monkeypatch.setattr(ilcsan.rl.evaluation, "random_policy_return", lambda *_a, **_k: 0.0)
+    monkeypatch.setattr(ilcsan.analysis.report, "plot_curves", lambda *_a, **_k: None)
+    monkeypatch.setattr(ilcsan.experiments.coordinator, "run_grid", _stub_grid)
     monkeypatch.chdir(workspace)
     threads = torch.get_num_threads()
     yield workspace
@@ -304,7 +304,7 @@ TOML_VALUES = st.recursive(SCALARS, lambda inner: st.lists(inner, max_size=3)
 @st.composite
 def rows(draw):
     row = {"slug": draw(st.sampled_from(["ilc", "pop", "a.b+c-1", "Bad Slug", ""]) | TEXT),
-           "preset": draw(st.sampled_from(PRESETS) | TOML_VALUES)}
+           "preset": draw(st.sampled_from(PRESET_NAMES) | TOML_VALUES)}
     if draw(st.booleans()):
         row["label"] = draw(TEXT | TOML_VALUES)
     if draw(st.booleans()):
@@ -342,7 +342,7 @@ def valid_grids(draw):
     rows_ = []
     for slug in draw(st.lists(st.sampled_from(["ilc", "pop", "no-intra.mean", "a+b", "x_1"]), min_size=1,
                               max_size=3, unique=True)):
-        preset = draw(st.sampled_from(PRESETS))
+        preset = draw(st.sampled_from(PRESET_NAMES))
         keys = ("hidden_layers", "hidden_width") if preset == "dan" else OVERRIDE_KEYS
         row = {"slug": slug, "preset": preset,
                "overrides": {key: draw(st.sampled_from(VALID_OVERRIDES[key]))
@@ -524,7 +524,7 @@ def test_damaged_policy_or_checkpoint_loads_or_is_one_user_error(trained_run, tm
 @given(operations=DAMAGE)
 def test_resume_from_a_damaged_checkpoint_resumes_or_is_one_line(trained_run, tmp_path_factory, monkeypatch,
                                                                  operations):
-    from ilcsan.training import Trainer
+    from ilcsan.rl.training import Trainer
 
     EXAMPLES["damaged checkpoints resumed"] += 1
     monkeypatch.setattr(Trainer, "train", lambda self: (self.close(), self.results())[1])
@@ -546,7 +546,7 @@ def test_resume_from_a_damaged_checkpoint_resumes_or_is_one_line(trained_run, tm
 
 @pytest.fixture(scope="module")
 def bundle_arrays(trained_run, tmp_path_factory):
-    from ilcsan.export import export
+    from ilcsan.deploy.bundle import export
 
     path = export(trained_run, "npz", tmp_path_factory.mktemp("bundle") / "actor.npz")
     with np.load(path, allow_pickle=False) as data:

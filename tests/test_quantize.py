@@ -8,9 +8,9 @@ import pytest
 from spiking_policies import observations, random_policy
 
 from ilcsan.deploy import SCALE_SUFFIX, DeployedActor
+from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
+from ilcsan.deploy.quantize import dequantize_weight, is_synaptic_weight, quantize_bundle, quantize_weight
 from ilcsan.errors import UserError
-from ilcsan.export import bundle_arrays, bundle_meta, export_npz
-from ilcsan.quantize import dequantize_weight, is_synaptic_weight, quantize_bundle, quantize_weight
 
 
 def test_quantize_weight_is_symmetric_per_tensor():

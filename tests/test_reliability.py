@@ -22,9 +22,10 @@ import pytest
 import torch
 
 from ilcsan.cli import main
+from ilcsan.config import RunConfig
 from ilcsan.errors import UserError
-from ilcsan.io import safe_torch_load
-from ilcsan.training import RunConfig, Trainer, load_run_config
+from ilcsan.files import safe_torch_load
+from ilcsan.rl.training import Trainer, load_run_config
 
 # the settings of the `trained_run` fixture (conftest.py), as command-line options
 RUN_OPTIONS = ["--task", "Pendulum-v1", "--steps", "300", "--eval-every", "150", "--eval-episodes", "1",
@@ -197,7 +198,7 @@ def test_damaged_policy_file_is_one_line(run_copy, capsys, damage, fragment):
 @pytest.fixture
 def bundle(trained_run, tmp_path):
     path = tmp_path / "actor.npz"
-    from ilcsan.export import export
+    from ilcsan.deploy.bundle import export
 
     export(trained_run, "npz", path)
     with np.load(path, allow_pickle=False) as data:
@@ -328,7 +329,7 @@ def test_diverging_loss_stops_the_run(tmp_path, capsys, faulty):
 
 
 def test_nan_loss_is_caught_at_the_update_chunk_it_appears(tmp_path, capsys, monkeypatch):
-    from ilcsan.td3 import TD3Agent
+    from ilcsan.rl.td3 import TD3Agent
 
     original, calls = TD3Agent.critic_loss, {"n": 0}
 
@@ -352,7 +353,7 @@ def no_training(monkeypatch):
     def refuse(*_args, **_kwargs):
         raise AssertionError("an environment was made before the output folder was checked")
 
-    monkeypatch.setattr("ilcsan.training.make_env", refuse)
+    monkeypatch.setattr("ilcsan.rl.training.make_env", refuse)
 
 
 def test_output_below_a_file_is_reported_before_training(tmp_path, capsys, no_training):
@@ -390,7 +391,7 @@ def test_full_disk_is_reported_before_training(tmp_path, capsys, monkeypatch, no
 
 def test_disk_full_at_a_checkpoint_keeps_the_last_one_and_resumes_exactly(trained_run, tmp_path, capsys,
                                                                          monkeypatch):
-    import ilcsan.training as training
+    import ilcsan.rl.training as training
 
     original, calls = training.atomic_torch_save, {"n": 0}
 
@@ -446,7 +447,7 @@ def test_impossible_settings_are_refused_at_once(tmp_path, capsys, option, value
 
 def test_the_memory_estimate_admits_the_papers_largest_runs():
     from ilcsan.config import actor_config
-    from ilcsan.training import check_memory, memory_estimate
+    from ilcsan.rl.memory import check_memory, memory_estimate
 
     paper = RunConfig(task="Humanoid", seeds=(0,), steps=1_000_000)
     check_memory(paper, 376, 17)  # one seed of the paper's largest task fits
@@ -491,7 +492,7 @@ def test_stale_temporary_files_are_removed_on_resume(run_copy, capsys):
 
 def test_a_local_ray_binds_to_loopback_with_its_dashboard_off(monkeypatch):
     ray = pytest.importorskip("ray")
-    from ilcsan import experiments
+    from ilcsan.experiments import coordinator as experiments
 
     calls: list[dict] = []
     monkeypatch.setattr(ray, "init", lambda *args, **kwargs: calls.append(dict(kwargs, args=args)))

@@ -1,4 +1,4 @@
-"""The report built from synthetic run directories written by hand (ilcsan.report)."""
+"""The report built from synthetic run directories written by hand (ilcsan.analysis.report)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ilcsan.report import (
+from ilcsan.analysis.report import (
     build_table,
-    cmd_report,
     collect_runs,
     curve,
     format_stat,
@@ -28,6 +27,7 @@ from ilcsan.report import (
     smooth,
     write_report,
 )
+from ilcsan.cli.grid_commands import cmd_report
 
 HEADER = "step,eval_return_mean,eval_return_std,eval_length_mean,wall_seconds,steps_per_second"
 
@@ -408,7 +408,7 @@ def test_write_report_on_an_empty_directory(tmp_path: Path) -> None:
 
 
 def test_short_curves_are_not_smoothed_and_long_ones_are() -> None:
-    from ilcsan.report import smoothing_window
+    from ilcsan.analysis.report import smoothing_window
 
     assert smoothing_window(6) == 1 and smoothing_window(19) == 1
     assert smoothing_window(40) == 2 and smoothing_window(100) == 5 and smoothing_window(1000) == 5

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from ilcsan.config import TD3Config, actor_config
+from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
-from ilcsan.td3 import TD3Agent
-from ilcsan.training import RunConfig, Trainer, train
+from ilcsan.rl.td3 import TD3Agent
+from ilcsan.rl.training import Trainer, train
 
 TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
 
@@ -71,7 +71,7 @@ def _random_batch(rng, seeds, batch, state_dim, action_dim):
 
 
 def test_first_critic_equals_the_first_twin_of_every_seed():
-    from ilcsan.td3 import TwinCritic
+    from ilcsan.rl.td3 import TwinCritic
 
     critic = TwinCritic(3, 2, [8, 8], seeds=(0, 1, 2))
     generator = torch.Generator().manual_seed(0)

@@ -26,8 +26,8 @@ def __getattr__(name: str):
 
 
 def load(path):
-    """Load a trained actor (run directory, policy.pt or checkpoint.pt) as a :class:`~ilcsan.policy.Policy`."""
-    from .policy import load as _load
+    """Load a trained actor (run directory, policy.pt or checkpoint.pt) as a :class:`~ilcsan.runs.policy.Policy`."""
+    from .runs.policy import load as _load
 
     return _load(path)
 

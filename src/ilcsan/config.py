@@ -17,15 +17,46 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
-from .decoders import DECODERS
-from .encoders import ENCODERS, SPIKING_ENCODERS
 from .errors import UserError
-from .intra import INTRA_VARIANTS
-from .switches import NETWORKS, NEURONS
-from .switches import PRESETS as PRESET_NAMES
+
+# ------------------------------------------------------------------------------ the choice lists
+ENCODERS: tuple[str, ...] = ("pop-det", "pop-prob", "pop", "layer", "two-neuron")
+SPIKING_ENCODERS: tuple[str, ...] = ("pop-det", "pop-prob")
+DECODERS: tuple[str, ...] = ("last", "max", "mean", "fr")
+NEURONS: tuple[str, ...] = ("clif", "dynamic")
+NETWORKS: tuple[str, ...] = ("spiking", "deep")
+ENGINES: tuple[str, ...] = ("fast", "reference")
+"""The actor's forward passes: layer-major (fast, default) and the literal Algorithm-1 time loop (reference)."""
+COMPILE_MODES: tuple[str, ...] = ("auto", "on", "off")
+# --matmul → torch's float32 matmul precision. "bf16" lets oneDNN round a float32 matmul's inputs to bfloat16
+# and accumulate in float32 (AMX / AVX512-BF16 CPUs; elsewhere it stays float32); on CUDA torch then uses
+# TF32/bf16 tensor cores. Neuron states, spikes, losses and optimiser stay float32 either way.
+MATMUL_PRECISIONS = {"float32": "highest", "bf16": "medium"}
+
+
+class IntraMask(NamedTuple):
+    """Which parts of I_intra = I_self + I_lateral + I_bias are kept (Eq. (10), Table intra)."""
+
+    self_weights: bool
+    lateral_weights: bool
+    bias: bool
+
+
+INTRA_MASKS: dict[str, IntraMask] = {
+    "intra": IntraMask(True, True, True),
+    "self": IntraMask(True, False, False),
+    "lateral": IntraMask(False, True, False),
+    "bias": IntraMask(False, False, True),
+    "lateral+bias": IntraMask(False, True, True),
+    "self+bias": IntraMask(True, False, True),
+    "self+lateral": IntraMask(True, True, False),
+    "none": IntraMask(False, False, False),
+}
+"""Every intra-layer variant as a mask on one mechanism; ``none`` keeps nothing (no intra-layer module)."""
+INTRA_VARIANTS: tuple[str, ...] = tuple(INTRA_MASKS)
 
 
 @dataclass(frozen=True)
@@ -55,6 +86,19 @@ class ActorConfig:
         """True when no floating-point matrix operation is needed at inference (Section III)."""
         return self.network == "spiking" and self.encoder in SPIKING_ENCODERS and self.decoder != "fr"
 
+    def encoded_width(self, state_dim: int) -> int:
+        """What the encoder hands to FC1 for an N-dimensional state: N·P_in neurons for the population
+        encoders (Eq. (9)), 2N channels for the two-neuron input, N for E_layer and DAN."""
+        if self.network == "spiking" and self.encoder.startswith("pop"):
+            return state_dim * self.population_in
+        return state_dim * (2 if self.network == "spiking" and self.encoder == "two-neuron" else 1)
+
+    def layer_sizes(self, state_dim: int, action_dim: int) -> list[int]:
+        """Input and output widths of the synaptic layers in order: [FC1 in, hidden..., last out], the last
+        being the M·P_out output neurons of a spiking actor or the M actions of DAN."""
+        outputs = action_dim * (self.population_out if self.network == "spiking" else 1)
+        return [self.encoded_width(state_dim), *self.hidden, outputs]
+
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)
         data["hidden"] = list(self.hidden)
@@ -82,7 +126,7 @@ PRESETS: dict[str, dict[str, Any]] = {
             "decoder": "last"},
 }
 
-assert tuple(PRESETS) == PRESET_NAMES, "switches.PRESETS must name every preset"
+PRESET_NAMES: tuple[str, ...] = tuple(PRESETS)
 
 PRESET_SUMMARIES = {
     "ilc-san": "ILC-SAN (the paper): E_pop_det, CLIF, intra-layer connections, LI decoder D_last",
@@ -180,4 +224,40 @@ class TD3Config:
         values = dict(data)
         if "critic_hidden" in values:
             values["critic_hidden"] = tuple(values["critic_hidden"])
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that defines a training run."""
+
+    task: str = "Hopper"
+    seeds: tuple[int, ...] = (0,)
+    steps: int = 1_000_000  # environment steps per seed
+    eval_every: int = 10_000
+    eval_episodes: int = 10
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    td3: TD3Config = field(default_factory=TD3Config)
+    device: str = "cpu"
+    engine: str = "fast"  # fast | reference
+    threads: int | None = None  # torch threads; None: torch's default
+    compile: str = "auto"  # torch.compile the networks: on | off | auto (on for runs of 50 000 steps or more)
+    matmul: str = "float32"  # float32 | bf16 (matmul inputs rounded to bfloat16, float32 accumulation; see below)
+    label: str | None = None  # row label in reports (default: the preset)
+    table: str | None = None  # set by `ilcsan reproduce`
+    row: str | None = None  # set by `ilcsan reproduce`
+
+    def for_seed(self, seed: int) -> dict[str, Any]:
+        """The config.json of one seed's run."""
+        data = dataclasses.asdict(self)
+        data.update(seed=seed, seeds=[seed], actor=self.actor.to_dict(), td3=self.td3.to_dict(),
+                    label=self.label or self.actor.preset)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+        values = {key: value for key, value in data.items() if key in {f.name for f in dataclasses.fields(cls)}}
+        values["actor"] = ActorConfig.from_dict(data["actor"])
+        values["td3"] = TD3Config.from_dict(data["td3"])
+        values["seeds"] = tuple(data.get("seeds", [data.get("seed", 0)]))
         return cls(**values)

@@ -9,7 +9,7 @@ Used by the quick CI subset (``tests/faults/test_kill_resume.py``) and the full 
    ``ILCSAN_FAULT_DELAY_WRITE`` so every atomic write pauses halfway through its data, leaving a
    half-written temporary file in place for the kill);
 3. inspects what the kill left (:func:`inspect_run`): every ``checkpoint.pt`` / ``policy.pt`` must load
-   with :func:`ilcsan.io.safe_torch_load`, and no checkpoint may be older than the last evaluation the
+   with :func:`ilcsan.files.safe_torch_load`, and no checkpoint may be older than the last evaluation the
    process reported on stdout (that would be data lost);
 4. runs ``train ... --resume`` to the end (possibly killing it again) and compares each seed's
    ``metrics.csv`` column ``eval_return_mean`` with an uninterrupted run of the same seed, as text:
@@ -212,7 +212,7 @@ class Inspection:
 def inspect_run(spec: RunSpec, out: Path, attempt: Attempt) -> Inspection:
     """Every checkpoint.pt / policy.pt loads; no checkpoint is older than the last reported evaluation."""
     from ilcsan.errors import UserError
-    from ilcsan.io import safe_torch_load
+    from ilcsan.files import safe_torch_load
 
     report = Inspection()
     reported = max(attempt.reported_steps, default=0)
@@ -239,7 +239,7 @@ def inspect_run(spec: RunSpec, out: Path, attempt: Attempt) -> Inspection:
 def _pending_covers(directory: Path, step: int) -> bool:
     """A complete pending checkpoint (two-phase commit of multi-seed runs) at ``step`` is not lost."""
     from ilcsan.errors import UserError
-    from ilcsan.io import safe_torch_load
+    from ilcsan.files import safe_torch_load
 
     path = directory / "checkpoint.next.pt"
     try:
@@ -250,7 +250,7 @@ def _pending_covers(directory: Path, step: int) -> bool:
 
 def leftovers(spec: RunSpec, out: Path) -> list[str]:
     """After a finished resume: temporary files, or replay segments no checkpoint refers to."""
-    from ilcsan.io import safe_torch_load
+    from ilcsan.files import safe_torch_load
 
     found = []
     for directory in spec.directories(out):
@@ -397,7 +397,8 @@ def grid_curves(out: Path) -> dict[str, list[str]]:
 def grid_reference_in_process(out: Path, workers: int = 1) -> dict[str, list[str]]:
     """The straight run of every cell of a finished grid, trained here as the local backend does with one
     worker: all seeds of a cell stacked in one process (from the runs' own config.json)."""
-    from ilcsan.training import RunConfig, load_run_config, train
+    from ilcsan.config import RunConfig
+    from ilcsan.rl.training import load_run_config, train
 
     if workers != 1:
         raise ValueError("the in-process reference mirrors one worker (one job per cell, all seeds stacked)")
@@ -421,7 +422,7 @@ def kill_grid_and_rerun(spec: GridSpec, folder: Path, points: list[KillPoint],
     """Run the grid, SIGKILL it (with its workers: the whole process group) at each point, then run it again
     to the end. Returns the kills made, what they left, and the last run's exit code and curves."""
     from ilcsan.errors import UserError
-    from ilcsan.io import safe_torch_load
+    from ilcsan.files import safe_torch_load
 
     grid_file, out = spec.write(folder), Path(folder) / "out"
     report = {"kills": 0, "kill_points": [], "corrupt": [], "codes": [], "errors": []}

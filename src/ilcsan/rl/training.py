@@ -20,22 +20,21 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import dataclasses
 import io
 import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from .config import ActorConfig, TD3Config
-from .errors import TrainingDiverged, UserError
-from .io import atomic_torch_save, atomic_write_json, atomic_write_text, read_json, safe_torch_load
+from ..config import ENGINES, MATMUL_PRECISIONS, RunConfig
+from ..errors import TrainingDiverged, UserError
+from ..files import atomic_torch_save, atomic_write_json, atomic_write_text, read_json, safe_torch_load
+from .memory import check_memory
 from .normalizer import RunningNormalizer
 from .replay import ReplayBuffer
 from .tasks import action_bounds, capture_env_state, make_env, restore_env_state
@@ -50,42 +49,6 @@ EVAL_SEED_OFFSET = 1_000_000
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything that defines a training run."""
-
-    task: str = "Hopper"
-    seeds: tuple[int, ...] = (0,)
-    steps: int = 1_000_000  # environment steps per seed
-    eval_every: int = 10_000
-    eval_episodes: int = 10
-    actor: ActorConfig = field(default_factory=ActorConfig)
-    td3: TD3Config = field(default_factory=TD3Config)
-    device: str = "cpu"
-    engine: str = "fast"  # fast | reference
-    threads: int | None = None  # torch threads; None: torch's default
-    compile: str = "auto"  # torch.compile the networks: on | off | auto (on for runs of 50 000 steps or more)
-    matmul: str = "float32"  # float32 | bf16 (matmul inputs rounded to bfloat16, float32 accumulation; see below)
-    label: str | None = None  # row label in reports (default: the preset)
-    table: str | None = None  # set by `ilcsan reproduce`
-    row: str | None = None  # set by `ilcsan reproduce`
-
-    def for_seed(self, seed: int) -> dict[str, Any]:
-        """The config.json of one seed's run."""
-        data = dataclasses.asdict(self)
-        data.update(seed=seed, seeds=[seed], actor=self.actor.to_dict(), td3=self.td3.to_dict(),
-                    label=self.label or self.actor.preset)
-        return data
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
-        values = {key: value for key, value in data.items() if key in {f.name for f in dataclasses.fields(cls)}}
-        values["actor"] = ActorConfig.from_dict(data["actor"])
-        values["td3"] = TD3Config.from_dict(data["td3"])
-        values["seeds"] = tuple(data.get("seeds", [data.get("seed", 0)]))
-        return cls(**values)
-
-
 def validate_run(config: RunConfig) -> None:
     """One clear sentence for every impossible run setting."""
     if config.steps < 1:
@@ -96,8 +59,8 @@ def validate_run(config: RunConfig) -> None:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):
         raise UserError(f"seeds must be distinct, got {list(config.seeds)}")
-    if config.engine not in ("fast", "reference"):
-        raise UserError(f"--engine {config.engine!r} is not one of: fast, reference")
+    if config.engine not in ENGINES:
+        raise UserError(f"--engine {config.engine!r} is not one of: {', '.join(ENGINES)}")
     if config.td3.batch_size < 1 or config.td3.update_every < 1 or config.td3.policy_delay < 1:
         raise UserError("--batch-size, --update-every and --policy-delay must be at least 1")
     try:
@@ -122,58 +85,8 @@ def validate_run(config: RunConfig) -> None:
                         f"{os.cpu_count() or 1}")
 
 
-def memory_estimate(config: RunConfig, state_dim: int, action_dim: int) -> dict[str, int]:
-    """A lower bound of the bytes a run needs: networks (weights, targets, gradients, Adam's two moments),
-    one update's activations (measured: 5-14x the layers' outputs over T steps; 4x is counted) and the
-    full replay buffers. Used to refuse, before anything starts, a run that cannot fit in memory."""
-    actor, td3, seeds = config.actor, config.td3, len(config.seeds)
-    if actor.network == "deep":
-        sizes, timesteps, extra = [state_dim, *actor.hidden, action_dim], 1, 0
-    else:
-        per_input = (actor.population_in if actor.encoder.startswith("pop")
-                     else 2 if actor.encoder == "two-neuron" else 1)
-        sizes, timesteps = [state_dim * per_input, *actor.hidden, action_dim * actor.population_out], actor.timesteps
-        extra = action_dim * actor.population_out * (actor.population_out + 3) + 2 * state_dim * per_input
-    critic = [state_dim + action_dim, *td3.critic_hidden, 1]
-
-    def parameters(widths: list[int]) -> int:
-        return sum(a * b + b for a, b in zip(widths[:-1], widths[1:], strict=False))
-
-    weights = 4 * seeds * 5 * (parameters(sizes) + extra + 2 * parameters(critic))
-    activations = 4 * 4 * seeds * td3.batch_size * timesteps * sum(sizes)
-    replay = 4 * seeds * min(td3.replay_size, config.steps) * (2 * state_dim + action_dim + 2)
-    return {"networks": weights + activations, "replay": replay}
-
-
-def physical_memory() -> int | None:
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def check_memory(config: RunConfig, state_dim: int, action_dim: int) -> None:
-    """Refuse a run whose networks or replay buffers cannot fit in this machine's memory at all."""
-    total = physical_memory()
-    if not total:
-        return
-    need = memory_estimate(config, state_dim, action_dim)
-    if config.device != "cpu":
-        need["networks"] = 0  # on the accelerator; its memory is the framework's to report
-    if sum(need.values()) > total:
-        gib = 2 ** 30
-        raise UserError(
-            f"this run needs at least {need['networks'] / gib:.1f} GiB for its networks and "
-            f"{need['replay'] / gib:.1f} GiB for its replay buffers, more than this machine's {total / gib:.1f} GiB; "
-            "use fewer seeds per run, a smaller --batch-size, --hidden-width, --timesteps or populations")
-
-
 COMPILE_AUTO_STEPS = 50_000
 
-# --matmul → torch's float32 matmul precision. "bf16" lets oneDNN round a float32 matmul's inputs to bfloat16
-# and accumulate in float32 (AMX / AVX512-BF16 CPUs; elsewhere it stays float32); on CUDA torch then uses
-# TF32/bf16 tensor cores. Neuron states, spikes, losses and optimiser stay float32 either way.
-MATMUL_PRECISIONS = {"float32": "highest", "bf16": "medium"}
 
 
 def set_matmul_precision(name: str) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 
 DEFAULT_CLIP = 3.0
 EPSILON = 1e-8

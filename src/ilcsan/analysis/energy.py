@@ -58,7 +58,6 @@ inference, so its FC is Din·Dout FLOP: we follow the stated formula and Table p
 
 from __future__ import annotations
 
-import json
 import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -66,10 +65,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .config import ActorConfig
-from .encoders import SPIKING_ENCODERS
-from .errors import UserError
-from .intra import INTRA_VARIANTS
+from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig
+from ..errors import UserError
 from .paper import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES
 
 GROUP_FC = "Group FC"
@@ -170,9 +167,7 @@ def fc_names(count: int) -> list[str]:
 
 def intra_synapses(intra: str, populations: int, population_size: int) -> int:
     """Synapses of the Intra FC under an ablation mask (biases are not synapses)."""
-    mask = INTRA_VARIANTS[intra]
-    if mask is None:
-        return 0
+    mask = INTRA_MASKS[intra]
     per_population = INTRA_SYNAPSES_PER_POPULATION[(mask.self_weights, mask.lateral_weights)]
     return populations * per_population(population_size)
 
@@ -267,7 +262,7 @@ def measure_firing_rates(policy, observations: np.ndarray) -> MeasuredRates:
 def firing_rates(policy, task: str | None = None, episodes: int = 1, seed: int = 0) -> MeasuredRates:
     """Table fr: run the deterministic policy for ``episodes`` episodes at batch 1 and average the firing
     rate of every neuronal layer feeding a synaptic layer over all steps (the paper: one episode)."""
-    from .evaluation import run_episodes
+    from ..rl.evaluation import run_episodes
 
     if episodes < 1:
         raise UserError(f"--episodes must be at least 1, got {episodes}")
@@ -303,7 +298,7 @@ def measure_energy(policy, episodes: int = 1, seed: int = 0, task: str | None = 
 def analytic_report(preset: str, task: str, state_dim: int, action_dim: int,
                     rates: Mapping[str, float] | None = None, source: str = "") -> EnergyReport:
     """A report from given rates (or none for DAN) for a preset's paper configuration."""
-    from .config import actor_config
+    from ..config import actor_config
 
     config = actor_config(preset)
     layers = synaptic_layers(config, state_dim, action_dim)
@@ -313,7 +308,7 @@ def analytic_report(preset: str, task: str, state_dim: int, action_dim: int,
 
 def paper_report(preset: str, task: str) -> EnergyReport:
     """The paper's Table fr rates for ``preset`` (popsan, ilc-san; dan needs none) on a paper task."""
-    from .tasks import PAPER_TASKS
+    from ..rl.tasks import PAPER_TASKS
 
     spec = PAPER_TASKS[task]
     if preset == "dan":
@@ -443,27 +438,3 @@ def format_report(report: EnergyReport) -> str:
     table = _markdown(["Layer", "(Din, Dout)", "Input", "fr_in", "Operations"], rows)
     energy = "; ".join(f"{report.energy_nj(cost):.2f} nJ ({cost.name})" for cost in COSTS)
     return f"{header}\n\n{table}\n\nTotal: {_total(report)} per inference\nEnergy per inference: {energy}"
-
-
-# ------------------------------------------------------------------------------------------ CLI
-def cmd_energy(args) -> int:
-    """``ilcsan energy RUN [RUN...] --episodes 1 --seed 0 [--json]``."""
-    from . import load
-
-    runs = list(getattr(args, "runs", None) or [])
-    if not runs:
-        raise UserError("pass at least one run directory or policy.pt")
-    episodes, seed = int(getattr(args, "episodes", 1)), int(getattr(args, "seed", 0))
-    reports = []
-    for run in runs:
-        policy = load(run)
-        reports.append(measure_energy(policy, episodes, seed, source=str(run)))
-    if getattr(args, "json", False):
-        print(json.dumps({"runs": [r.to_dict() for r in reports],
-                          "averaged": [r.to_dict() for r in average_reports(reports)],
-                          "costs": [c._asdict() for c in COSTS]}, indent=2))
-        return 0
-    print("\n\n".join(format_report(r) for r in reports))
-    if len(reports) > 1:
-        print("\n" + energy_table(reports))
-    return 0

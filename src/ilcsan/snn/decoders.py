@@ -19,9 +19,9 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .layers import uniform_
+from ..config import DECODERS
+from .ensemble import uniform_
 from .neurons import li_step
-from .switches import DECODERS
 
 __all__ = ["DECODERS", "PopulationDecoder", "select_statistic", "integrate_voltages"]
 

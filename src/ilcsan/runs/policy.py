@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from .actors import build_actor
-from .config import ActorConfig
-from .errors import UserError
-from .io import safe_torch_load
-from .training import CHECKPOINT_FORMAT, POLICY_FORMAT
+from ..snn.actor import build_actor
+from ..config import ActorConfig
+from ..errors import UserError
+from ..files import safe_torch_load
+from ..rl.training import CHECKPOINT_FORMAT, POLICY_FORMAT
 
 
 def resolve_policy_file(path: str | Path) -> Path:
@@ -150,8 +150,8 @@ def load(path: str | Path) -> Policy:
             count = float(normalizer["count"])
             variance = np.asarray(normalizer["m2"]) / max(count, 1.0) if count > 0 else np.ones_like(
                 np.asarray(normalizer["m2"]))
-            from .normalizer import EPSILON
-            from .tasks import action_bounds, make_env
+            from ..rl.normalizer import EPSILON
+            from ..rl.tasks import action_bounds, make_env
 
             config = data["config"]
             env = make_env(config["task"])

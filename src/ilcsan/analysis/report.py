@@ -50,8 +50,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
-from .grids import TABLES, TableSpec
+from ..errors import UserError
+from ..experiments.tables import TABLES, TableSpec
 from .paper import PAPER_TASKS, Stat, published_apr, published_cell
 
 METRICS_HEADER: tuple[str, ...] = (
@@ -960,24 +960,8 @@ def resolve_table(table: str | None, runs: Sequence[RunRecord] = ()) -> str | Ta
     if table is None or table in TABLES or any(run.table == table for run in runs):
         return table
     if table.endswith(".toml"):
-        from .grids import load_grid
+        from ..experiments.tables import load_grid
 
         return load_grid(table)
     tags = sorted({run.table for run in runs if run.table and run.table not in TABLES})
     raise UserError(f"no table {table!r}: use one of {', '.join([*TABLES, *tags])} or a grid's .toml file")
-
-
-def cmd_report(args) -> int:
-    """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
-    scan = scan_runs(args.directory)
-    table = resolve_table(args.table, scan.runs)
-    try:
-        paths = write_report(args.directory, args.out, table)
-    except OSError as error:  # --out is a file, read-only, full, ...
-        raise UserError(f"cannot write the report to {args.out or args.directory}: {error.strerror or error}; "
-                        "choose another --out") from None
-    print(f"ilcsan report: {len(scan.runs)} run(s) found below {args.directory}"
-          + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
-    for kind, path in paths.items():
-        print(f"  {kind:<8} {path}")
-    return 0

@@ -21,8 +21,8 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from ..config import ENCODERS, SPIKING_ENCODERS
 from .neurons import EncoderParams, soft_reset_if_step, straight_through
-from .switches import ENCODERS, SPIKING_ENCODERS
 
 __all__ = ["ENCODERS", "SPIKING_ENCODERS", "Encoder", "EncodedInput", "gaussian_stimulation",
            "deterministic_spike_train", "bernoulli_spike_train"]

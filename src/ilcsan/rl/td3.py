@@ -21,9 +21,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from .actors import build_actor
-from .config import ActorConfig, TD3Config
-from .layers import EnsembleMLP, seed_generators
+from ..config import ActorConfig, TD3Config
+from ..snn.actor import build_actor
+from ..snn.ensemble import EnsembleMLP, seed_generators
 
 CRITIC_SALT = 2
 NOISE_SALT = 3

@@ -77,7 +77,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 try:
-    from .errors import UserError
+    from ..errors import UserError
 except ImportError:  # loaded as a standalone file: no package around it
 
     class UserError(ValueError):  # type: ignore[no-redef]

@@ -14,7 +14,7 @@ Work is cut into **jobs**: the unfinished seeds of one (task, row) cell that sta
 checkpoint step train together in one process, with the seeds' weights stacked
 (``RunConfig(seeds=...)``), which is faster in aggregate than one process per seed. Cells are split
 into smaller jobs when there are fewer jobs than worker slots, or when the seeds' replay buffers would
-not fit in memory (:func:`replay_bytes`).
+not fit in memory (:func:`seed_replay_bytes`).
 
 Backends:
 
@@ -57,10 +57,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
-from .config import TD3Config, actor_config
-from .errors import TrainingDiverged, UserError
-from .grids import TABLES, RowSpec, TableSpec, load_grid
-from .training import RunConfig, load_run_config
+from ..config import RunConfig, TD3Config, actor_config
+from ..errors import TrainingDiverged, UserError
+from ..rl.memory import physical_memory, replay_bytes
+from ..rl.training import load_run_config
+from .tables import TABLES, RowSpec, TableSpec, load_grid
 
 DEFAULT_STEPS_PER_SECOND = 110.0
 """Environment steps per second of one ILC-SAN run on Hopper on one core (one torch thread), evaluations
@@ -160,7 +161,7 @@ def resolve_table(name: str) -> tuple[TableSpec, str | TableSpec]:
 def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = None,
                 report_table: str | TableSpec | None = None) -> Grid:
     """Every run of ``spec`` as shrunk by ``options``, placed below ``out/<table>``."""
-    from .tasks import resolve_task
+    from ..rl.tasks import resolve_task
 
     options = options or GridOptions()
 
@@ -235,7 +236,7 @@ def run_state(directory: Path, config: RunConfig) -> RunState:
         return RunState("finished", config.steps)
     checkpoint = directory / "checkpoint.pt"
     if checkpoint.exists():
-        from .io import safe_torch_load
+        from ..files import safe_torch_load
 
         return RunState("partial", int(safe_torch_load(checkpoint)["step"]))
     return RunState("new", 0)
@@ -358,9 +359,9 @@ def balance_jobs(jobs: Sequence[Job], slots: int, max_seeds: int | None = None) 
     return sorted(balanced, key=lambda job: -job.steps_left)
 
 
-def replay_bytes(task: str, config: RunConfig) -> int:
+def seed_replay_bytes(task: str, config: RunConfig) -> int:
     """Memory of one seed's replay buffer when full: capacity × (2N + M + 2) float32 values."""
-    from .tasks import PAPER_TASKS, make_env
+    from ..rl.tasks import PAPER_TASKS, make_env
 
     spec = PAPER_TASKS.get(task)
     if spec is not None:
@@ -369,16 +370,7 @@ def replay_bytes(task: str, config: RunConfig) -> int:
         env = make_env(task)
         state_dim, action_dim = int(env.observation_space.shape[0]), int(env.action_space.shape[0])
         env.close()
-    capacity = min(config.td3.replay_size, config.steps)
-    return capacity * (2 * state_dim + action_dim + 2) * 4
-
-
-def physical_memory() -> int | None:
-    """Bytes of memory of this machine, or None where the OS does not say."""
-    try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
+    return replay_bytes(state_dim, action_dim, min(config.td3.replay_size, config.steps))
 
 
 def max_seeds_per_job(grid: Grid, slots: int, memory: int | None = None) -> int | None:
@@ -386,7 +378,7 @@ def max_seeds_per_job(grid: Grid, slots: int, memory: int | None = None) -> int 
     memory = physical_memory() if memory is None else memory
     if not memory:
         return None
-    largest = max((replay_bytes(task, grid.runs[0].config) for task in grid.spec.tasks), default=0)
+    largest = max((seed_replay_bytes(task, grid.runs[0].config) for task in grid.spec.tasks), default=0)
     if largest <= 0:
         return None
     return max(1, int(memory * MEMORY_FRACTION / max(1, slots) // largest))
@@ -410,7 +402,7 @@ def run_job(job: Job) -> JobOutcome:
     The seeds' states are read again here, so a retried job (Ray, or a replaced local worker) continues
     where the previous attempt stopped, even when that attempt left the seeds at different checkpoints.
     """
-    from .training import train
+    from ..rl.training import train
 
     started = time.perf_counter()
     job.log_file.parent.mkdir(parents=True, exist_ok=True)
@@ -865,7 +857,7 @@ def _finish(grid: Grid, summary: dict[str, Any], finished: int, started: float, 
             log: Callable[[str], None]) -> GridSummary:
     report = None
     if write:
-        from .report import write_report
+        from ..analysis.report import write_report
 
         report = write_report(grid.out, grid.root, grid.report_table)
         log(f"report: {report['markdown']} (also .tex, .csv) · learning curves: {report['curves']}")
@@ -948,58 +940,9 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
     return "\n\n".join([*blocks, footer])
 
 
-def _split(text: str | None) -> tuple[str, ...] | None:
-    if text is None:
-        return None
-    names = tuple(part.strip() for part in text.split(",") if part.strip())
-    return names or None
-
-
-def options_from_args(args) -> GridOptions:
-    """The grid options of parsed ``reproduce`` arguments."""
-    from .cli import parse_seeds
-
-    td3 = {} if args.start_steps is None else {"start_steps": args.start_steps}
-    return GridOptions(
-        seeds=None if args.seeds is None else parse_seeds(args.seeds), steps=args.steps, tasks=_split(args.tasks),
-        rows=_split(args.rows), eval_every=args.eval_every, eval_episodes=args.eval_episodes, td3=td3,
-        device=args.device, matmul=getattr(args, "matmul", "float32"))
-
-
-def cmd_reproduce(args) -> int:
-    """``ilcsan reproduce TABLE|GRID.toml [options]`` and ``ilcsan reproduce --list``."""
-    if args.list:
-        specs = [resolve_table(args.table)[0]] if args.table else None
-        print(list_tables(specs))
-        return 0
-    if not args.table:
-        raise UserError(f"name a table to reproduce ({', '.join(TABLES)}) or a grid file (.toml); "
-                        "`ilcsan reproduce --list` shows them")
-    if args.backend not in ("local", "ray"):
-        raise UserError(f"--backend {args.backend!r} is not one of: local, ray")
-    if args.backend == "ray":
-        import_ray()
-    elif args.address:
-        raise UserError("--address is for --backend ray; the local backend runs on this machine")
-    spec, layout = resolve_table(args.table)
-    grid = expand_grid(spec, args.out, options_from_args(args), layout)
-    from .training import _check_writable, validate_run
-
-    if grid.runs:  # a bad --matmul: one line before any worker starts (devices are checked by the workers)
-        validate_run(dataclasses.replace(grid.runs[0].config, device="cpu"))
-
-    _check_writable(grid.root)  # an unwritable or full --out: one line before any worker starts
-    summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
-    if summary.interrupted:
-        return 130
-    if summary.failed:
-        return 3 if summary.diverged else 1
-    return 0
-
-
 __all__ = [
     "GridOptions", "GridRun", "Grid", "RunState", "Job", "JobOutcome", "GridSummary", "LocalBackend", "RayBackend",
     "resolve_table", "expand_grid", "run_state", "group_jobs", "balance_jobs", "split_job", "run_job", "run_grid",
-    "make_backend", "start_local_ray", "estimate_hours", "describe_table", "list_tables", "cmd_reproduce",
+    "make_backend", "start_local_ray", "estimate_hours", "describe_table", "list_tables",
     "DEFAULT_STEPS_PER_SECOND",
 ]

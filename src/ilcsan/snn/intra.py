@@ -14,36 +14,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import torch
 from torch import nn
 
-from .layers import uniform_
-from .switches import INTRA_VARIANTS as INTRA_NAMES
-
-
-class IntraMask(NamedTuple):
-    """Which parts of I_intra = I_self + I_lateral + I_bias are kept."""
-
-    self_weights: bool
-    lateral_weights: bool
-    bias: bool
-
-
-INTRA_VARIANTS: dict[str, IntraMask | None] = {
-    "intra": IntraMask(True, True, True),
-    "self": IntraMask(True, False, False),
-    "lateral": IntraMask(False, True, False),
-    "bias": IntraMask(False, False, True),
-    "lateral+bias": IntraMask(False, True, True),
-    "self+bias": IntraMask(True, False, True),
-    "self+lateral": IntraMask(True, True, False),
-    "none": None,
-}
-
-
-assert tuple(INTRA_VARIANTS) == INTRA_NAMES, "switches.INTRA_VARIANTS must name every variant"
+from ..config import IntraMask
+from .ensemble import uniform_
 
 
 def weight_mask(population: int, mask: IntraMask) -> torch.Tensor:

@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
-from .io import atomic_savez
-from .policy import Policy, load
+from ..errors import UserError
+from ..files import atomic_savez
+from ..runs.policy import Policy, load
 
 FORMATS = ("npz", "nir")
 WEIGHTS = ("float32", "int8")
@@ -104,7 +104,7 @@ def export(run: str | Path, format: str = "npz", out: Path | None = None, weight
         out = out / f"actor{suffix}.{format}"
     try:
         if format == "nir":
-            from .nir_export import export_nir
+            from .nir import export_nir
 
             return export_nir(policy, out)
         return export_npz(policy, out, weights)

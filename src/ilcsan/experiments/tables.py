@@ -7,7 +7,7 @@ is an actor preset plus overrides of the actor's switches; ``ilcsan reproduce`` 
 (task, row, seed) and writes ``OUT/<table>/<task>/<row-slug>/seed<k>/``. Row slugs are the keys of
 :mod:`ilcsan.paper`, so the report puts the published number beside ours.
 
-Actor switches (fields of the actor configuration): ``preset`` ∈ :data:`PRESETS`; overrides
+Actor switches (fields of the actor configuration): ``preset`` ∈ :data:`~ilcsan.config.PRESET_NAMES`; overrides
 ``encoder`` ∈ :data:`ENCODERS`, ``decoder`` ∈ :data:`DECODERS`, ``alpha_v_li`` (float),
 ``intra`` ∈ :data:`INTRA_VARIANTS`, ``hidden_layers`` (1-4), ``hidden_width`` (≥ 1).
 ``alpha_v_li`` is the decay factor α_V^LI of the decoder's LI neuron, in [0, 1].
@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import UserError
-from .paper import FIRST_FOUR, PAPER_TASKS
-from .switches import DECODERS, ENCODERS, INTRA_VARIANTS, PRESETS
+from ..analysis.paper import FIRST_FOUR, PAPER_TASKS
+from ..config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES
+from ..errors import UserError
 
 OVERRIDE_KEYS: tuple[str, ...] = (
     "encoder", "decoder", "alpha_v_li", "intra", "hidden_layers", "hidden_width",
@@ -297,8 +297,8 @@ def _row_from_dict(item: Any, where: str) -> RowSpec:
         raise UserError(f"{where}: every row needs a 'slug' and a 'preset'")
     slug = _slug(item["slug"], f"{where}: slug")
     preset = item["preset"]
-    if preset not in PRESETS:
-        raise UserError(f"{where}: unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    if preset not in PRESET_NAMES:
+        raise UserError(f"{where}: unknown preset {preset!r}; choose one of {', '.join(PRESET_NAMES)}")
     label = item.get("label", slug)
     if not isinstance(label, str) or not label.strip():
         raise UserError(f"{where}: label must be a non-empty string, got {label!r}")

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
-from .io import atomic_savez
+from ..errors import UserError
+from ..files import atomic_savez
 
 FIELDS = ("obs", "action", "reward", "next_obs", "terminal")
 

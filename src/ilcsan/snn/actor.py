@@ -21,11 +21,11 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from .config import ActorConfig
+from ..config import INTRA_MASKS, ActorConfig
 from .decoders import PopulationDecoder, select_statistic
 from .encoders import Encoder
-from .intra import INTRA_VARIANTS, IntraLayerConnections
-from .layers import EnsembleLinear, EnsembleMLP, seed_generators
+from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
+from .intra import IntraLayerConnections
 from .neurons import (
     CLIFParams,
     DynamicParams,
@@ -37,7 +37,6 @@ from .neurons import (
     li_step,
 )
 
-ENGINES = ("fast", "reference")
 ACTOR_SALT = 1
 
 
@@ -98,9 +97,9 @@ class SpikingActor(_ActionScaling):
         sizes = [self.encoder.output_dim, *config.hidden, output_neurons]
         self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b) for a, b in zip(sizes[:-1], sizes[1:],
                                                                                    strict=True))
-        mask = INTRA_VARIANTS[config.intra]
+        mask = INTRA_MASKS[config.intra]
         self.intra = (IntraLayerConnections(ensemble, action_dim, config.population_out, mask)
-                      if mask is not None else None)
+                      if any(mask) else None)
         self.decoder = PopulationDecoder(ensemble, action_dim, config.population_out, config.decoder,
                                          config.alpha_v_li)
         self.neuron = _neuron(config)

@@ -77,10 +77,10 @@ from typing import Any
 
 import numpy as np
 
-from .deploy import deterministic_spike_train, gaussian_stimulation, select_statistic
-from .errors import UserError
-from .intra import INTRA_VARIANTS
-from .io import atomic_write_file
+from ..config import INTRA_MASKS
+from ..errors import UserError
+from ..files import atomic_write_file
+from .runtime import deterministic_spike_train, gaussian_stimulation, select_statistic
 
 FORMAT = "ilcsan-nir/1"
 DT = 1.0
@@ -143,8 +143,8 @@ def build_graph(policy):
     config, actor = policy.actor_config, policy.actor
     weights = [_weights(layer.weight) for layer in actor.layers]
     biases = [_weights(layer.bias) for layer in actor.layers]
-    mask = INTRA_VARIANTS[config.intra]
-    clock = mask is not None and mask.bias
+    mask = INTRA_MASKS[config.intra]
+    clock = mask.bias
     if clock:  # the clock neuron: zero weights, bias V_th + 1 → spikes at every step
         weights[-1] = np.vstack([weights[-1], np.zeros((1, weights[-1].shape[1]), np.float32)])
         biases[-1] = np.append(biases[-1], np.float32(config.v_th + 1.0))

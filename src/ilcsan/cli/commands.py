@@ -1,0 +1,125 @@
+"""The training-side commands: train, evaluate, demo, export, and the listings (actors, tasks)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from .options import build_run_config
+
+
+def _print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
+    widths = {c: max(len(c), *(len(str(r.get(c, ""))) for r in rows)) for c in columns}
+    print("  ".join(c.ljust(widths[c]) for c in columns))
+    for row in rows:
+        print("  ".join(str(row.get(c, "")).ljust(widths[c]) for c in columns))
+
+
+# ----------------------------------------------------------------------------------- commands
+def cmd_train(args: argparse.Namespace) -> int:
+    from ..rl.training import train
+
+    config = build_run_config(args)
+    out = Path(args.out or f"runs/{config.task}-{config.actor.preset}-s{args.seeds.replace(',', '_')}")
+    results = train(config, out, resume=args.resume, progress=None if not args.no_progress else False)
+    _print_results(results, out)
+    return 0
+
+
+def _print_results(results: list[dict[str, Any]], out: Path) -> None:
+    import numpy as np
+
+    bests = [r["best_return"] for r in results if r["best_return"] is not None]
+    if not bests:
+        print(f"no evaluation was made; results are in {out}")
+        return
+    if len(results) == 1:
+        r = results[0]
+        print(f"best average evaluation return {r['best_return']:.1f} at step {r['best_step']} "
+              f"(seed {r['seed']}, {r['steps_done']} steps); results in {out}")
+    else:
+        print(f"best average evaluation return {np.mean(bests):.1f} ± {np.std(bests):.1f} over {len(bests)} seeds "
+              f"({', '.join(f'{b:.1f}' for b in bests)}); results in {out}/seed*")
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from ..rl.evaluation import evaluate_policy
+    from ..runs.policy import load
+
+    policy = load(args.run)
+    returns, lengths = evaluate_policy(policy, episodes=args.episodes, seed=args.seed, task=args.task)
+    import numpy as np
+
+    print(f"{policy.task} · {policy.actor_config.preset} · {args.episodes} episodes: average return "
+          f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "
+          f"average length {np.mean(lengths):.0f}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from ..deploy import bundle as export
+
+    path = export.export(args.run, args.format, Path(args.out) if args.out else None, weights=args.weights)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_actors(args: argparse.Namespace) -> int:
+    from ..config import PRESET_SUMMARIES, actor_config
+
+    if args.json:
+        print(json.dumps({name: actor_config(name).to_dict() for name in PRESET_SUMMARIES}, indent=2))
+        return 0
+    rows = []
+    for name, summary in PRESET_SUMMARIES.items():
+        c = actor_config(name)
+        rows.append({"preset": name, "encoder": c.encoder if c.network == "spiking" else "-",
+                     "neuron": c.neuron if c.network == "spiking" else "relu",
+                     "hidden": "x".join(map(str, c.hidden)), "intra": c.intra if c.network == "spiking" else "-",
+                     "decoder": (f"{c.decoder}" + (f" α={c.alpha_v_li}" if c.decoder != "fr" else ""))
+                     if c.network == "spiking" else "tanh",
+                     "lr": c.learning_rate, "fully spiking": "yes" if c.fully_spiking else "no",
+                     "what": summary})
+    _print_table(rows, ["preset", "encoder", "neuron", "hidden", "intra", "decoder", "lr", "fully spiking", "what"])
+    return 0
+
+
+def cmd_tasks(args: argparse.Namespace) -> int:
+    from ..rl.tasks import describe_tasks
+
+    rows = describe_tasks()
+    for row in rows:
+        row["kwargs"] = ",".join(f"{k}={v}" for k, v in row["kwargs"].items()) or "-"
+    _print_table(rows, ["task", "gym_id", "N", "M", "paper_id", "kwargs", "note"])
+    print("Any other registered Gymnasium id with a Box action space works too, e.g. Pendulum-v1.")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ..config import RunConfig, TD3Config, actor_config
+    from ..rl.training import train
+
+    out = Path(args.out)
+    config = RunConfig(task=args.task, seeds=(args.seed,), steps=args.steps, eval_every=max(1, args.steps // 6),
+                       eval_episodes=5, actor=actor_config("ilc-san"),
+                       td3=TD3Config(start_steps=1000, update_after=1000), threads=args.threads)
+    print(f"ilcsan demo: training ILC-SAN on {config.task} for {config.steps} steps (a short run, not the paper's "
+          f"1M-step protocol); results in {out}")
+    # always resume: running the quick start again continues (or just reports) the demo instead of refusing
+    results = train(config, out, resume=True, progress=None)
+    _print_results(results, out)
+    from ..analysis.report import collect_runs, plot_curves
+
+    picture = out / "learning_curve.png"
+    plot_curves(collect_runs(out), picture)
+    from ..rl.evaluation import random_policy_return
+
+    baseline = random_policy_return(config.task, episodes=5, seed=args.seed)
+    best = results[0]["best_return"]
+    print(f"a random policy scores {baseline:.1f} on {config.task}; the trained spiking actor scored {best:.1f}")
+    print(f"learning curve: {picture}; deploy it with `ilcsan export {out} --format npz`, "
+          f"or in Python: ilcsan.load('{out}').predict(obs)")
+    return 0
+

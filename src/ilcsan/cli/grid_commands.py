@@ -1,0 +1,102 @@
+"""The commands that work on many runs: reproduce (grids of runs), report (tables and curves), energy."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+from ..errors import UserError
+from .options import parse_seeds
+
+
+def _split(text: str | None) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    return names or None
+
+
+def options_from_args(args):
+    """The grid options of parsed ``reproduce`` arguments."""
+    from ..experiments.coordinator import GridOptions
+
+    td3 = {} if args.start_steps is None else {"start_steps": args.start_steps}
+    return GridOptions(
+        seeds=None if args.seeds is None else parse_seeds(args.seeds), steps=args.steps, tasks=_split(args.tasks),
+        rows=_split(args.rows), eval_every=args.eval_every, eval_episodes=args.eval_episodes, td3=td3,
+        device=args.device, matmul=getattr(args, "matmul", "float32"))
+
+
+def cmd_reproduce(args) -> int:
+    """``ilcsan reproduce TABLE|GRID.toml [options]`` and ``ilcsan reproduce --list``."""
+    from ..experiments.coordinator import TABLES, expand_grid, import_ray, list_tables, resolve_table, run_grid
+
+    if args.list:
+        specs = [resolve_table(args.table)[0]] if args.table else None
+        print(list_tables(specs))
+        return 0
+    if not args.table:
+        raise UserError(f"name a table to reproduce ({', '.join(TABLES)}) or a grid file (.toml); "
+                        "`ilcsan reproduce --list` shows them")
+    if args.backend not in ("local", "ray"):
+        raise UserError(f"--backend {args.backend!r} is not one of: local, ray")
+    if args.backend == "ray":
+        import_ray()
+    elif args.address:
+        raise UserError("--address is for --backend ray; the local backend runs on this machine")
+    spec, layout = resolve_table(args.table)
+    grid = expand_grid(spec, args.out, options_from_args(args), layout)
+    from ..rl.training import _check_writable, validate_run
+
+    if grid.runs:  # a bad --matmul: one line before any worker starts (devices are checked by the workers)
+        validate_run(dataclasses.replace(grid.runs[0].config, device="cpu"))
+
+    _check_writable(grid.root)  # an unwritable or full --out: one line before any worker starts
+    summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
+    if summary.interrupted:
+        return 130
+    if summary.failed:
+        return 3 if summary.diverged else 1
+    return 0
+
+
+def cmd_report(args) -> int:
+    """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
+    from ..analysis.report import resolve_table, scan_runs, write_report
+
+    scan = scan_runs(args.directory)
+    table = resolve_table(args.table, scan.runs)
+    try:
+        paths = write_report(args.directory, args.out, table)
+    except OSError as error:  # --out is a file, read-only, full, ...
+        raise UserError(f"cannot write the report to {args.out or args.directory}: {error.strerror or error}; "
+                        "choose another --out") from None
+    print(f"ilcsan report: {len(scan.runs)} run(s) found below {args.directory}"
+          + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
+    for kind, path in paths.items():
+        print(f"  {kind:<8} {path}")
+    return 0
+
+
+def cmd_energy(args) -> int:
+    """``ilcsan energy RUN [RUN...] --episodes 1 --seed 0 [--json]``."""
+    from .. import load
+    from ..analysis.energy import COSTS, average_reports, energy_table, format_report, measure_energy
+
+    runs = list(getattr(args, "runs", None) or [])
+    if not runs:
+        raise UserError("pass at least one run directory or policy.pt")
+    episodes, seed = int(getattr(args, "episodes", 1)), int(getattr(args, "seed", 0))
+    reports = []
+    for run in runs:
+        policy = load(run)
+        reports.append(measure_energy(policy, episodes, seed, source=str(run)))
+    if getattr(args, "json", False):
+        print(json.dumps({"runs": [r.to_dict() for r in reports],
+                          "averaged": [r.to_dict() for r in average_reports(reports)],
+                          "costs": [c._asdict() for c in COSTS]}, indent=2))
+        return 0
+    print("\n\n".join(format_report(r) for r in reports))
+    if len(reports) > 1:
+        print("\n" + energy_table(reports))
+    return 0

@@ -1,0 +1,1 @@
+"""The spiking actor family: neuron dynamics, ensemble layers, encoders, intra-layer connections, decoders."""
