@@ -24,7 +24,7 @@ def make(config, state_dim=3, action_dim=2, seeds=(0,)):
 
 
 def output_layer_spikes(actor: SpikingActor, currents: torch.Tensor) -> torch.Tensor:
-    return actor._spiking_loop(currents, with_intra=True)
+    return actor.layer_spikes(currents, output_layer=True)
 
 
 def test_intra_current_arrives_one_step_late_and_never_at_t1():
@@ -152,6 +152,45 @@ def test_fast_engine_equals_reference_engine(switches):
         grads.append([p.grad.clone() for p in actor.parameters()])
     for g_fast, g_reference in zip(*grads, strict=True):
         assert torch.allclose(g_fast, g_reference, atol=1e-4, rtol=1e-3)
+
+
+@pytest.mark.parametrize("preset", ["ilc-san", "popsan", "dan"])
+def test_engine_is_a_read_only_constructor_argument(preset):
+    state = torch.randn(1, 8, 3, generator=torch.Generator().manual_seed(2))
+    default = make(small(preset))
+    reference = build_actor(small(preset), 3, 2, [1.0, 1.0], engine="reference")
+    assert default.engine == "fast" and reference.engine == "reference"
+    assert torch.allclose(reference(state), default(state), atol=1e-5)  # same seed: same weights, same actions
+    with pytest.raises(AttributeError):
+        default.engine = "reference"
+    with pytest.raises(UserError, match="--engine"):
+        build_actor(small(preset), 3, 2, [1.0, 1.0], engine="slow")
+    with pytest.raises(UserError, match="--engine"):
+        default.run(state, "slow")
+
+
+def test_reference_engine_uses_the_decoders_step_and_readout(monkeypatch):
+    """The oracle has no decoder arithmetic of its own: replacing the decoder's operations changes both engines."""
+    from ilcsan.snn.decoders import PopulationDecoder
+
+    actor = make(small(decoder="mean", alpha_v_li=0.5))
+    state = torch.randn(1, 8, 3, generator=torch.Generator().manual_seed(3))
+    before = actor.run(state, "reference").action
+    monkeypatch.setattr(PopulationDecoder, "readout", lambda self, spikes, voltages: voltages.sum(dim=1) + 7.0)
+    after = {engine: actor.run(state, engine).action for engine in ("fast", "reference")}
+    assert not torch.allclose(before, after["reference"])
+    assert torch.allclose(after["fast"], after["reference"], atol=1e-5)
+
+
+@pytest.mark.parametrize("switches", [dict(), dict(preset="akl"), dict(encoder="layer"), dict(preset="dan")],
+                         ids=lambda s: ",".join(f"{k}={v}" for k, v in s.items()) or "ilc-san")
+def test_layer_widths_come_from_the_config(switches):
+    switches = dict(switches)
+    config = actor_config(switches.pop("preset", "ilc-san"), **switches)
+    actor = make(config, state_dim=5, action_dim=2)
+    layers = actor.mlp.layers if config.network == "deep" else actor.layers
+    widths = [layers[0].in_features, *(layer.out_features for layer in layers)]
+    assert widths == config.layer_sizes(5, 2)
 
 
 def test_seed_slice_of_an_ensemble_equals_a_single_seed_actor():

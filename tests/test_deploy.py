@@ -4,6 +4,7 @@ its synaptic-operation count equal to the energy model's."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,11 +16,13 @@ from spiking_policies import HAND_SOP, hand_made_policy, observations, random_po
 import ilcsan.deploy.runtime
 from ilcsan.analysis.energy import energy_report, measure_firing_rates
 from ilcsan.config import INTRA_MASKS as INTRA_VARIANTS
+from ilcsan.config import actor_config
 from ilcsan.deploy import DeployedActor
-from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
+from ilcsan.deploy.bundle import actor_config_of, bundle_arrays, bundle_meta, export_npz
+from ilcsan.deploy.runtime.bundle_format import mask_of_variant
 from ilcsan.errors import UserError
 
-DEPLOY_FILE = Path(ilcsan.deploy.runtime.__file__)
+RUNTIME_FOLDER = Path(ilcsan.deploy.runtime.__file__).parent
 TOLERANCE = 1e-4
 
 FULLY_SPIKING = [
@@ -104,7 +107,7 @@ def test_hand_made_actor_sop_per_layer():
     assert runtime.last_sop == 71
     runtime.act(np.zeros(3))
     assert runtime.total_sop == 142 and runtime.inferences == 2
-    old_meta = {key: value for key, value in bundle_meta(policy).items() if key != "intra"}
+    old_meta = {key: value for key, value in bundle_meta(policy).items() if key not in ("intra", "intra_mask")}
     inferred = DeployedActor.from_arrays(bundle_arrays(policy), old_meta)  # a bundle that does not name its mask:
     inferred.act(np.zeros(3))  # all-zero weights are inferred to be no synapses at all
     assert inferred.last_sop_by_layer["Intra FC"] == 0 and inferred.last_sop == 57
@@ -125,24 +128,27 @@ def _fresh_python(code: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
 
 
-def test_standalone_file_runs_a_bundle_without_torch(tmp_path):
+def test_standalone_folder_runs_a_bundle_without_torch(tmp_path):
+    """The runtime folder copied on its own (under another name, no ilcsan around it) loads and runs a bundle."""
     policy = random_policy()
     path = export_npz(policy, tmp_path / "actor.npz")
     observation = observations(policy, 1)[0]
+    robot = tmp_path / "robot"
+    shutil.copytree(RUNTIME_FOLDER, robot / "deployed_actor", ignore=shutil.ignore_patterns("__pycache__"))
     code = f"""
-import importlib.util, json, sys
-spec = importlib.util.spec_from_file_location("deploy_copy", {str(DEPLOY_FILE)!r})
-module = importlib.util.module_from_spec(spec)
-sys.modules[spec.name] = module
-spec.loader.exec_module(module)
-actor = module.DeployedActor.load({str(path)!r})
+import json, sys
+sys.path.insert(0, {str(robot)!r})
+from deployed_actor import DeployedActor, UserError
+actor = DeployedActor.load({str(path)!r})
 action = actor.act({observation.tolist()!r})
-print(json.dumps({{"torch": "torch" in sys.modules, "action": action.tolist(), "sop": actor.last_sop}}))
+print(json.dumps({{"torch": "torch" in sys.modules, "ilcsan": any(name.startswith("ilcsan") for name in sys.modules),
+                  "local_error": UserError.__module__, "action": action.tolist(), "sop": actor.last_sop}}))
 """
     result = _fresh_python(code)
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
-    assert data["torch"] is False
+    assert data["torch"] is False and data["ilcsan"] is False
+    assert data["local_error"] == "deployed_actor.errors"
     assert np.abs(np.array(data["action"]) - policy.predict(observation)).max() < TOLERANCE
     assert data["sop"] > 0
 
@@ -157,12 +163,23 @@ def test_package_import_without_torch():
     assert result.stdout.strip() == "False"
 
 
-def test_deploy_module_imports_numpy_only():
-    source = DEPLOY_FILE.read_text()
-    imports = [line.split()[1] for line in source.splitlines() if line.startswith(("import ", "from "))]
-    assert "torch" not in " ".join(imports)
-    assert set(imports) <= {"__future__", "json", "math", "collections.abc", "dataclasses", "pathlib", "typing",
-                            "numpy"}
+def test_runtime_modules_import_numpy_only():
+    modules = sorted(RUNTIME_FOLDER.glob("*.py"))
+    assert {path.name for path in modules} >= {"__init__.py", "actor.py", "host.py", "bundle_format.py"}
+    for path in modules:
+        imports = [line.split()[1] for line in path.read_text().splitlines()
+                   if line.strip().startswith(("import ", "from "))]
+        assert "torch" not in " ".join(imports), path.name
+        external = {name for name in imports if not name.startswith(".")}
+        assert external <= {"__future__", "json", "math", "collections.abc", "dataclasses", "pathlib", "typing",
+                            "numpy"}, path.name
+        assert all(name in (".errors", "...errors") or name.count(".") == 1 for name in imports
+                   if name.startswith(".")), path.name  # only siblings, and the package's UserError
+
+
+def test_package_modules_stay_under_400_lines():
+    for path in [*RUNTIME_FOLDER.glob("*.py"), *RUNTIME_FOLDER.parent.glob("*.py")]:
+        assert len(path.read_text().splitlines()) <= 400, path.name
 
 
 # ----------------------------------------------------------------------------------- refusals
@@ -214,6 +231,8 @@ def test_load_errors(tmp_path):
     ({"T": "five"}, "'T'"), ({"T": 0}, "'T'"), ({"obs_std": [-1.0] * 11}, "obs_std"),
     ({"action_offset": [0.0]}, "action_offset"), ({"v_reset": 0.5}, "reset"), ({"neuron": "izhikevich"}, "neuron"),
     ({"intra": "sideways"}, "intra"), ({"statistic": "median"}, "statistic|fully spiking"),
+    ({"intra_mask": {"self_weights": True}}, "intra_mask"), ({"intra_mask": [True, True, True]}, "intra_mask"),
+    ({"intra": "self"}, "disagree"),
 ])
 def test_bad_meta(change, message):
     policy = random_policy(hidden=(16, 16))
@@ -239,3 +258,45 @@ def test_intra_mask_from_meta_equals_mask_from_weights():
     named = DeployedActor.from_arrays(arrays, dict(meta, intra="lateral+bias"))
     assert inferred.intra.fan_out == named.intra.fan_out == 9
     np.testing.assert_array_equal(inferred.intra.targets, named.intra.targets)
+
+
+# ------------------------------------------------------------------------------- the bundle's meta
+def old_bundle_meta(policy) -> dict:
+    """The meta as bundles written before the meta was built from ActorConfig.to_dict (names only, no flags)."""
+    c = policy.actor_config
+    return {
+        "T": c.timesteps, "alpha_c": c.alpha_c, "alpha_v": c.alpha_v, "v_th": c.v_th, "v_reset": 0.0,
+        "alpha_v_li": c.alpha_v_li, "v_reset_li": 0.0, "statistic": c.decoder, "encoder": c.encoder,
+        "enc_v_th": c.enc_v_th, "obs_mean": policy.obs_mean.tolist(), "obs_std": policy.obs_std.tolist(),
+        "obs_clip": policy.obs_clip, "action_scale": policy.action_scale.tolist(),
+        "action_offset": policy.action_offset.tolist(), "output": "tanh", "neuron": c.neuron,
+        "network": c.network, "preset": c.preset, "task": policy.task, "population_out": c.population_out,
+        "intra": c.intra, "population_in": c.population_in,
+    }
+
+
+@pytest.mark.parametrize("variant", INTRA_VARIANTS)
+def test_old_bundles_load_and_act_the_same(tmp_path, variant):
+    policy = random_policy(intra=variant, hidden=(24, 16))
+    arrays = bundle_arrays(policy)
+    old = DeployedActor.load(_saved(tmp_path, arrays, old_bundle_meta(policy)))
+    new = DeployedActor.load(export_npz(policy, tmp_path / "new.npz"))
+    batch = observations(policy, 6)
+    np.testing.assert_array_equal(old.act(batch), new.act(batch))
+    assert old.total_sop_by_layer == new.total_sop_by_layer
+    assert set(old_bundle_meta(policy)) <= set(bundle_meta(policy))  # every key an old runtime reads is written
+
+
+@pytest.mark.parametrize("variant", INTRA_VARIANTS)
+def test_variant_names_parse_to_the_configs_masks(variant):
+    assert mask_of_variant(variant) == tuple(INTRA_VARIANTS[variant])
+    assert bundle_meta(random_policy(intra=variant, hidden=(8,)))["intra_mask"] == INTRA_VARIANTS[variant]._asdict()
+
+
+def test_bundle_meta_is_the_config_under_the_bundles_keys():
+    config = actor_config("ilc-san", hidden=(16, 12), intra="self+bias", decoder="max", alpha_v_li=0.75, timesteps=7)
+    policy = random_policy(**{key: getattr(config, key) for key in ("hidden", "intra", "decoder", "alpha_v_li",
+                                                                      "timesteps")})
+    meta = json.loads(json.dumps(bundle_meta(policy)))
+    assert actor_config_of(meta) == policy.actor_config == config
+    assert meta["T"] == 7 and meta["statistic"] == "max" and "timesteps" not in meta and "decoder" not in meta

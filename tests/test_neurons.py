@@ -18,6 +18,7 @@ from ilcsan.snn.neurons import (
     dynamic_step,
     heaviside_spike,
     li_step,
+    neuron_model,
     soft_reset_if_step,
 )
 
@@ -124,7 +125,7 @@ def test_encoder_soft_reset_if_and_straight_through_gradient():
         s, v = soft_reset_if_step(stimulation, v, EncoderParams())
         spikes.append(s)
     assert [float(s.detach()) for s in spikes] == [0.0, 0.0, 1.0, 0.0, 1.0]
-    assert float(v) == pytest.approx(2.0 - 2 * 0.999, abs=1e-6)
+    assert float(v.detach()) == pytest.approx(2.0 - 2 * 0.999, abs=1e-6)
     torch.stack(spikes).sum().backward()
     assert float(stimulation.grad) == 5.0  # ∂S_t/∂A = 1 at every step, spike or not
 
@@ -160,4 +161,16 @@ def test_gaussian_receptive_fields():
     sigma = math.sqrt(0.15)
     expected = torch.cat([torch.exp(-0.5 * ((0.0 - mu) / sigma) ** 2), torch.exp(-0.5 * ((3.0 - mu) / sigma) ** 2)])
     assert torch.allclose(stimulation, expected)
-    assert float(stimulation[19]) == pytest.approx(1.0)  # s = 3 sits on the last centre
+    assert float(stimulation[19].detach()) == pytest.approx(1.0)  # s = 3 sits on the last centre
+
+
+def test_neuron_model_of_a_config_carries_its_constants():
+    from ilcsan.config import actor_config
+
+    clif = neuron_model(actor_config("ilc-san", alpha_c=0.25, alpha_v=0.5, v_th=0.75, surrogate_width=0.3))
+    assert clif.step is clif_step and clif.initial_state is clif_initial_state and clif.train is clif_train
+    assert clif.params == CLIFParams(0.25, 0.5, 0.75, 0.0, 0.3)
+    dynamic = neuron_model(actor_config("mdc-san", alpha_c=0.25, v_th=0.75))
+    assert dynamic.step is dynamic_step and dynamic.initial_state is dynamic_initial_state and dynamic.train is None
+    assert (dynamic.params.alpha_current, dynamic.params.threshold) == (0.25, 0.75)
+    assert dynamic.params.theta_v == DynamicParams().theta_v

@@ -3,11 +3,15 @@
 
 from __future__ import annotations
 
+import json
+
 import nir
 import numpy as np
 import pytest
 from spiking_policies import observations, random_policy
 
+from ilcsan.deploy import DeployedActor
+from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.nir import (
     build_graph,
     cubalif_parameters,
@@ -98,7 +102,33 @@ def test_graph_layout(tmp_path):
     assert not graph.nodes["decoder"].weight[:, 30].any()
     assert graph.metadata["format"] == "ilcsan-nir/1" and graph.metadata["encoder_mu"].shape == (11, 10)
     host = read_host(graph)
-    assert host["clock_neuron"] and host["timesteps"] == 5 and host["statistic"] == "last"
+    assert host["clock_neuron"] and host["T"] == graph.metadata["timesteps"] == 5 and host["statistic"] == "last"
+
+
+def test_host_metadata_is_the_bundle_meta(tmp_path):
+    policy = random_policy(hidden=(16,), decoder="mean", alpha_v_li=0.5)
+    host = read_host(nir.read(export_nir(policy, tmp_path / "actor.nir")))
+    for key, value in bundle_meta(policy).items():
+        assert host[key] == value, key
+
+
+def test_host_encoder_is_the_numpy_runtimes(tmp_path):
+    policy = random_policy(hidden=(16,))
+    host = read_host(build_graph(policy))
+    observation = observations(policy, 1)[0]
+    runtime_trains = DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy)).spike_trains(observation)
+    np.testing.assert_array_equal(host_encode(host, observation), runtime_trains[0].astype(np.float32))
+
+
+def test_graphs_whose_host_names_the_timesteps_still_run(tmp_path):
+    """Graphs written when ``host`` held ``timesteps`` (not the bundle's ``T``) read back with T from the graph."""
+    policy = random_policy(hidden=(16,))
+    graph = build_graph(policy)
+    host = json.loads(graph.metadata["host"])
+    host["timesteps"] = host.pop("T")
+    graph.metadata["host"] = json.dumps(host)
+    observation = observations(policy, 1)[0]
+    assert np.abs(nir_action(graph, observation) - policy.predict(observation)).max() < ROUND_TRIP_TOLERANCE
 
 
 def test_clock_neuron_delivers_the_intra_bias_from_step_two(tmp_path):

@@ -1,7 +1,8 @@
 """Deployment: the numpy-only additions-only runtime, the ``.npz`` bundle, NIR graphs, int8 weights.
 
-``from ilcsan.deploy import DeployedActor`` needs numpy only: this package imports nothing that needs
-torch until :mod:`ilcsan.deploy.bundle` or :mod:`ilcsan.deploy.nir` is imported.
+``from ilcsan.deploy import DeployedActor`` needs numpy only: :mod:`ilcsan.deploy.runtime` is a folder of
+numpy-only modules (it can be copied alone); :mod:`ilcsan.deploy.bundle`, :mod:`ilcsan.deploy.nir` and
+:mod:`ilcsan.deploy.quantize` are imported only when used (the first two need torch).
 """
 
 from .runtime import SCALE_SUFFIX, DeployedActor

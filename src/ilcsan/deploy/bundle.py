@@ -1,6 +1,7 @@
-"""Export a trained actor: the ``.npz`` deploy bundle, or a NIR graph (:mod:`ilcsan.nir_export`).
+"""Export a trained actor: the ``.npz`` deploy bundle, or a NIR graph (:mod:`ilcsan.deploy.nir`).
 
-Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.deploy` with numpy only:
+Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.deploy.runtime` with
+numpy only:
 
 =====================  ============  =========================================================
 name                   shape         meaning
@@ -14,43 +15,57 @@ intra.bias             (M, P)        intra-layer bias, mask applied (absent: non
 decoder.weight         (M, P_out)    group FC of the population decoder
 decoder.bias           (M,)
 <name>.scale           ()            float32 scale of an int8 weight, W ≈ scale · q (``--weights int8``)
-meta                   str (JSON)    T, alpha_c, alpha_v, v_th, v_reset, alpha_v_li, v_reset_li,
-                                     statistic, encoder, enc_v_th, obs_mean, obs_std, obs_clip,
-                                     action_scale, action_offset, output ("tanh"), neuron,
-                                     network, preset, task, population_out, population_in, intra
-                                     (int8 bundles add weights, quantization)
+meta                   str (JSON)    see :func:`bundle_meta`
 =====================  ============  =========================================================
+
+The meta is the actor's :meth:`~ilcsan.config.ActorConfig.to_dict` with two keys renamed
+(:data:`~ilcsan.deploy.runtime.CONFIG_META_KEYS`: ``timesteps`` → ``T``, ``decoder`` → ``statistic``),
+the intra-layer mask as flags (``intra_mask``, :class:`~ilcsan.config.IntraMask`), the reset voltages
+``v_reset`` = ``v_reset_li`` = 0, ``output`` = "tanh", the ``task``, the frozen normaliser (``obs_mean``,
+``obs_std``, ``obs_clip``) and the action bounds (``action_scale``, ``action_offset``); int8 bundles add
+``weights`` and ``quantization``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..config import INTRA_MASKS, ActorConfig
 from ..errors import UserError
 from ..files import atomic_savez
 from ..runs.policy import Policy, load
+from .runtime import CONFIG_META_KEYS
 
 FORMATS = ("npz", "nir")
 WEIGHTS = ("float32", "int8")
 
 
+FIXED_META = {"v_reset": 0.0, "v_reset_li": 0.0, "output": "tanh"}
+"""Constants of every exported actor: reset voltages of 0 (the paper's) and the tanh action squashing."""
+
+
 def bundle_meta(policy: Policy) -> dict[str, Any]:
-    """The bundle's metadata: every constant the runtime needs, JSON-serialisable."""
-    c = policy.actor_config
-    return {
-        "T": c.timesteps, "alpha_c": c.alpha_c, "alpha_v": c.alpha_v, "v_th": c.v_th, "v_reset": 0.0,
-        "alpha_v_li": c.alpha_v_li, "v_reset_li": 0.0, "statistic": c.decoder, "encoder": c.encoder,
-        "enc_v_th": c.enc_v_th, "obs_mean": policy.obs_mean.tolist(), "obs_std": policy.obs_std.tolist(),
-        "obs_clip": policy.obs_clip, "action_scale": policy.action_scale.tolist(),
-        "action_offset": policy.action_offset.tolist(), "output": "tanh", "neuron": c.neuron,
-        "network": c.network, "preset": c.preset, "task": policy.task, "population_out": c.population_out,
-        "intra": c.intra,
-        "population_in": c.population_in,
-    }
+    """The bundle's metadata (JSON-serialisable): the actor's configuration under the bundle's keys, its
+    intra-layer mask, the task, the frozen normaliser and the action bounds."""
+    config = policy.actor_config
+    meta = {CONFIG_META_KEYS.get(name, name): value for name, value in config.to_dict().items()}
+    meta.update(FIXED_META, intra_mask=INTRA_MASKS[config.intra]._asdict(), task=policy.task,
+                obs_mean=policy.obs_mean.tolist(), obs_std=policy.obs_std.tolist(), obs_clip=float(policy.obs_clip),
+                action_scale=policy.action_scale.tolist(), action_offset=policy.action_offset.tolist())
+    return meta
+
+
+def actor_config_of(meta: dict[str, Any]) -> ActorConfig:
+    """The :class:`~ilcsan.config.ActorConfig` a bundle's meta was written from (the inverse of the renaming)."""
+    renamed = {key: name for name, key in CONFIG_META_KEYS.items()}
+    fields = {field.name for field in dataclasses.fields(ActorConfig)}
+    values = {renamed.get(key, key): value for key, value in meta.items()}
+    return ActorConfig.from_dict({name: value for name, value in values.items() if name in fields})
 
 
 def bundle_arrays(policy: Policy) -> dict[str, np.ndarray]:

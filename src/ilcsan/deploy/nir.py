@@ -20,7 +20,7 @@ Forward Euler with step dt, the voltage using the current of the same step:
 I_t = (1 − dt/τ_syn) I_{t−1} + (dt/τ_syn) w_in S_t,  v_t = (1 − dt/τ_mem) v_{t−1} + (dt/τ_mem) R I_t.
 Matching C_t = α_C C_{t−1} + X_t and H_t = α_V V_{t−1} + C_t gives
 τ_syn = dt/(1 − α_C), w_in = 1/(1 − α_C), τ_mem = dt/(1 − α_V), R = 1/(1 − α_V), v_leak = 0, hard reset
-v_reset = 0: α_C = 0.5, α_V = 0.75 ⇔ τ_syn = 2, w_in = 2, τ_mem = 4, R = 4 with dt = 1 (the SPEC's values;
+v_reset = 0: α_C = 0.5, α_V = 0.75 ⇔ τ_syn = 2, w_in = 2, τ_mem = 4, R = 4 with dt = 1 (the paper's values;
 all these coefficients are powers of two, so a float32 simulation is bit-exact). Likewise the LI neuron
 V_t = α V_{t−1} + X_t is nir.LI(τ = dt/(1 − α), R = 1/(1 − α)) and, for α = 1, nir.I(R = 1/dt). α = 1 in a
 CLIF (no leak) has no finite τ and is refused. Our spike is Θ(H − V_th) with Θ(0) = 1, NIR's is v > v_th:
@@ -80,7 +80,8 @@ import numpy as np
 from ..config import INTRA_MASKS
 from ..errors import UserError
 from ..files import atomic_write_file
-from .runtime import deterministic_spike_train, gaussian_stimulation, select_statistic
+from .bundle import bundle_meta
+from .runtime.host import encode, normalize, select_statistic, squash
 
 FORMAT = "ilcsan-nir/1"
 DT = 1.0
@@ -182,22 +183,18 @@ def build_graph(policy):
 
 
 def host_metadata(policy, clock: bool) -> dict[str, Any]:
-    """What the host computes around the graph: normaliser, encoder, statistic, tanh and scaling."""
-    config, actor = policy.actor_config, policy.actor
-    host = {
-        "encoder": config.encoder, "enc_v_th": config.enc_v_th, "timesteps": config.timesteps,
-        "statistic": config.decoder, "alpha_v_li": config.alpha_v_li, "output": "tanh",
-        "obs_mean": policy.obs_mean.tolist(), "obs_std": policy.obs_std.tolist(), "obs_clip": policy.obs_clip,
-        "action_scale": policy.action_scale.tolist(), "action_offset": policy.action_offset.tolist(),
-        "population_in": config.population_in, "population_out": config.population_out,
-        "action_dim": policy.action_dim, "clock_neuron": clock, "task": policy.task, "preset": config.preset,
-        "timing": "feed-forward edges zero lag; recurrent edge intra delayed one step; Euler, dt = 1",
-    }
-    metadata: dict[str, Any] = {"format": FORMAT, "dt": DT, "timesteps": config.timesteps, "host": json.dumps(host)}
+    """What the host computes around the graph: the deploy bundle's meta (:func:`~ilcsan.deploy.bundle.bundle_meta`:
+    configuration, normaliser, action bounds) plus the graph's own facts, as the JSON string ``host``; the
+    encoder's receptive fields and the ``fr`` decoder's weights as arrays."""
+    actor = policy.actor
+    host = dict(bundle_meta(policy), action_dim=policy.action_dim, clock_neuron=clock,
+                timing="feed-forward edges zero lag; recurrent edge intra delayed one step; Euler, dt = 1")
+    metadata: dict[str, Any] = {"format": FORMAT, "dt": DT, "timesteps": policy.actor_config.timesteps,
+                                "host": json.dumps(host)}
     if actor.encoder.mu is not None:
         metadata["encoder_mu"] = _weights(actor.encoder.mu)
         metadata["encoder_sigma"] = _weights(actor.encoder.sigma)
-    if config.decoder == "fr":
+    if policy.actor_config.decoder == "fr":
         metadata["decoder_weight"] = _weights(actor.decoder.weight)
         metadata["decoder_bias"] = _weights(actor.decoder.bias)
     return metadata
@@ -341,12 +338,13 @@ def _fire(node, voltage: np.ndarray, state: dict[str, np.ndarray], **extra: np.n
 
 # ------------------------------------------------------------------------------------- host side
 def read_host(graph) -> dict[str, Any]:
-    """The host-side constants stored in an ilcsan NIR graph's metadata."""
+    """The host-side constants stored in an ilcsan NIR graph's metadata (bundle meta keys: ``T``, ``statistic``)."""
     metadata = getattr(graph, "metadata", None) or {}
     if str(metadata.get("format", "")) != FORMAT or "host" not in metadata:
         raise UserError(f"this NIR graph has no ilcsan host metadata (format {FORMAT!r}); it was not written "
                         "by ilcsan export --format nir")
     host = json.loads(str(metadata["host"]))
+    host.setdefault("T", int(metadata["timesteps"]))  # graphs written before the host held the bundle's meta
     for name in ("encoder_mu", "encoder_sigma", "decoder_weight", "decoder_bias"):
         if name in metadata:
             host[name] = np.asarray(metadata[name], np.float32)
@@ -354,35 +352,23 @@ def read_host(graph) -> dict[str, Any]:
 
 
 def host_encode(host: Mapping[str, Any], observation: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
-    """Normalise and encode one raw observation (N,) into the graph input (T, D_0) on the host."""
-    state = np.clip((np.asarray(observation, np.float64) - np.asarray(host["obs_mean"]))
-                    / np.asarray(host["obs_std"]), -host["obs_clip"], host["obs_clip"]).astype(np.float32)
-    timesteps, kind = int(host["timesteps"]), host["encoder"]
-    if kind == "layer":
-        return np.repeat(state[None], timesteps, axis=0)
-    if kind == "two-neuron":
-        analog = np.concatenate([np.maximum(state, 0), np.maximum(-state, 0)]) / np.float32(host["obs_clip"])
-        return np.repeat(analog[None].astype(np.float32), timesteps, axis=0)
-    stimulation = gaussian_stimulation(state, host["encoder_mu"], host["encoder_sigma"])
-    if kind == "pop":
-        return np.repeat(stimulation[None], timesteps, axis=0)
-    if kind == "pop-prob":
-        rng = np.random.default_rng() if rng is None else rng
-        return (rng.random((timesteps, stimulation.size)) < np.clip(stimulation, 0, 1)).astype(np.float32)
-    return deterministic_spike_train(stimulation, timesteps, float(host["enc_v_th"])).astype(np.float32)
+    """Normalise and encode one raw observation (N,) into the graph input (T, D_0) on the host, with the
+    numpy runtime's normaliser and encoders (:mod:`ilcsan.deploy.runtime.host`)."""
+    state = normalize(observation, host["obs_mean"], host["obs_std"], host["obs_clip"])
+    return encode(host["encoder"], state, int(host["T"]), host.get("encoder_mu"), host.get("encoder_sigma"),
+                  float(host["enc_v_th"]), float(host["obs_clip"]), rng)
 
 
 def host_decode(host: Mapping[str, Any], outputs: np.ndarray) -> np.ndarray:
-    """The graph's output over T steps → action: Stat(V_1..V_T) (or PopSAN's rate → group FC), tanh, scale."""
+    """The graph's output over T steps → action: Stat(V_1..V_T) (Eq. (8)) or, for ``fr``, PopSAN's group FC
+    of the firing rates; then offset + scale · tanh(O), as the numpy runtime."""
     if host["statistic"] == "fr":
         populations, size = int(host["action_dim"]), int(host["population_out"])
         rates = outputs[:, :populations * size].mean(axis=0, dtype=np.float32).reshape(populations, size)
         output = (rates * host["decoder_weight"]).sum(-1) + host["decoder_bias"]
     else:
         output = select_statistic(outputs.astype(np.float32), host["statistic"])
-    scale = np.asarray(host["action_scale"], np.float32)
-    offset = np.asarray(host["action_offset"], np.float32)
-    return offset + scale * np.tanh(output)
+    return squash(output, host["action_scale"], host["action_offset"])
 
 
 def nir_action(graph, observation: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """int8 synaptic weights with one float scale per layer, as neuromorphic chips store them.
 
-``quantize_bundle(arrays, meta)`` turns a float32 deploy bundle (:mod:`ilcsan.export`) into an int8
+``quantize_bundle(arrays, meta)`` turns a float32 deploy bundle (:mod:`ilcsan.deploy.bundle`) into an int8
 one (``ilcsan export RUN --weights int8``). Scheme: symmetric, per synaptic layer, zero-point 0:
 
     scale = max|W| / 127,    q = clip(round(W / scale), −127, 127) as int8,    W ≈ scale · q
@@ -8,7 +8,7 @@ one (``ilcsan export RUN --weights int8``). Scheme: symmetric, per synaptic laye
 for every synaptic weight matrix (``layers.<l>.weight``, ``intra.weight``, ``decoder.weight``). The
 scale is stored as a float32 scalar array ``<name>.scale`` (:data:`ilcsan.deploy.SCALE_SUFFIX`).
 Zero-point 0 keeps a zero weight exactly zero, so the ablation masks of the intra-layer connections
-survive quantisation and a spike still selects whole integer weights: on chip the accumulation is
+survive quantisation, and a spike selects whole integer weights: on chip the accumulation is
 integer and the scale folds into the neuron's threshold and decay constants. Biases (constant currents,
 usually held at higher precision on chips), the encoder's receptive fields (host) and everything in
 ``meta`` stay float. The runtime (:class:`ilcsan.deploy.DeployedActor`) accumulates the integers

@@ -1,13 +1,13 @@
 """Actor networks: the spiking actor family (ILC-SAN and its baselines) and TD3's deep actor (DAN).
 
 :class:`SpikingActor` is one mechanism with switches (:class:`~ilcsan.config.ActorConfig`): encoder,
-neuron, depth, intra-layer mask, decoder statistic. It has two engines that compute the same function:
-
-* ``reference``: Algorithm 1 literally — for t = 1..T, for l = 1..L, update layer l at step t, then the
-  intra-layer current for t + 1 and the decoder's LI neuron.
-* ``fast`` (default): layer-major — each synaptic layer's matmul runs over all T steps at once (an analog
-  input's matmul once), and only the neuron updates and the output population's intra-layer recurrence
-  loop over t. Equal to the reference up to float rounding (tested).
+neuron, depth, intra-layer mask, decoder statistic. Its forward pass is layer-major: each synaptic
+layer's matmul W^l S^{l−1}_{1..T} + b^l runs over all T steps at once (an analog input's matmul once),
+and only the neuron updates (Eq. (1)-(3)) and the output population's intra-layer recurrence (Eq. (10))
+loop over t. Because layer l at step t depends only on layer l−1 at step t and its own earlier state,
+this computes Algorithm 1 exactly; :mod:`ilcsan.snn.reference` runs Algorithm 1 literally, one time step
+at a time, as the tested oracle (``engine="reference"``). Both engines call the same neuron step,
+intra-layer module and decoder operations.
 
 Every tensor has a leading ensemble dimension K (seeds trained together): observations (K, B, N) →
 actions (K, B, M).
@@ -21,21 +21,13 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from ..config import INTRA_MASKS, ActorConfig
-from .decoders import PopulationDecoder, select_statistic
+from ..config import ENGINES, INTRA_MASKS, ActorConfig
+from ..errors import UserError
+from .decoders import PopulationDecoder
 from .encoders import Encoder
 from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 from .intra import IntraLayerConnections
-from .neurons import (
-    CLIFParams,
-    DynamicParams,
-    clif_initial_state,
-    clif_step,
-    clif_train,
-    dynamic_initial_state,
-    dynamic_step,
-    li_step,
-)
+from .neurons import neuron_model
 
 ACTOR_SALT = 1
 
@@ -54,47 +46,44 @@ class ActorOutput(NamedTuple):
     voltages: torch.Tensor | None
 
 
-class _Neuron(NamedTuple):
-    step: object
-    initial_state: object
-    params: object
-    train: object = None  # all T steps of a layer at once, with a written-out backward (CLIF only)
+def checked_engine(engine: str) -> str:
+    """``engine`` if it is one of :data:`ilcsan.config.ENGINES`, else a :class:`UserError` naming the choices."""
+    if engine not in ENGINES:
+        raise UserError(f"--engine {engine!r} is not one of: {', '.join(ENGINES)}")
+    return engine
 
 
-def _neuron(config: ActorConfig) -> _Neuron:
-    if config.neuron == "dynamic":
-        return _Neuron(dynamic_step, dynamic_initial_state,
-                       DynamicParams(alpha_current=config.alpha_c, threshold=config.v_th,
-                                     surrogate_width=config.surrogate_width))
-    return _Neuron(clif_step, clif_initial_state,
-                   CLIFParams(config.alpha_c, config.alpha_v, config.v_th, 0.0, config.surrogate_width), clif_train)
+class _Actor(nn.Module):
+    """What every actor holds: its configuration, sizes, engine and the action scaling
+    action = offset + scale · tanh(O), scale and offset from the task's Box bounds."""
 
-
-class _ActionScaling(nn.Module):
-    """action = offset + scale · tanh(O), scale and offset from the task's Box bounds."""
-
-    def __init__(self, action_scale: Sequence[float], action_offset: Sequence[float]):
+    def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
+                 action_offset: Sequence[float], engine: str):
         super().__init__()
+        self.config, self.state_dim, self.action_dim = config, state_dim, action_dim
+        self._engine = checked_engine(engine)
         self.register_buffer("action_scale", torch.as_tensor(action_scale, dtype=torch.float32))
         self.register_buffer("action_offset", torch.as_tensor(action_offset, dtype=torch.float32))
+
+    @property
+    def engine(self) -> str:
+        """The forward pass :meth:`run` uses unless told otherwise: 'fast' or 'reference' (fixed at construction)."""
+        return self._engine
 
     def squash(self, output: torch.Tensor) -> torch.Tensor:
         return self.action_offset + self.action_scale * torch.tanh(output)
 
 
-class SpikingActor(_ActionScaling):
+class SpikingActor(_Actor):
     """The spiking actor network of Fig. 2 with every ablation as a switch."""
 
-    def __init__(self, config: ActorConfig, state_dim: int, action_dim: int,
-                 action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int]):
-        super().__init__(action_scale, action_offset)
-        self.config, self.state_dim, self.action_dim = config, state_dim, action_dim
-        self.engine = "fast"
+    def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
+                 action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast"):
+        super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
         ensemble = len(seeds)
         self.encoder = Encoder(config.encoder, ensemble, state_dim, config.population_in, config.timesteps,
                                threshold=config.enc_v_th)
-        output_neurons = action_dim * config.population_out
-        sizes = [self.encoder.output_dim, *config.hidden, output_neurons]
+        sizes = config.layer_sizes(state_dim, action_dim)
         self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b) for a, b in zip(sizes[:-1], sizes[1:],
                                                                                    strict=True))
         mask = INTRA_MASKS[config.intra]
@@ -102,7 +91,7 @@ class SpikingActor(_ActionScaling):
                       if any(mask) else None)
         self.decoder = PopulationDecoder(ensemble, action_dim, config.population_out, config.decoder,
                                          config.alpha_v_li)
-        self.neuron = _neuron(config)
+        self.neuron = neuron_model(config)
         self.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:
@@ -114,107 +103,71 @@ class SpikingActor(_ActionScaling):
             self.intra.reset_parameters(generators)
         self.decoder.reset_parameters(generators)
 
-    # ------------------------------------------------------------------------------------ engines
-    def _spiking_loop(self, currents: torch.Tensor, with_intra: bool) -> torch.Tensor:
+    def layer_spikes(self, currents: torch.Tensor, output_layer: bool) -> torch.Tensor:
         """Neuron updates of one layer over T steps; currents (K, T, B, D) → spikes (K, T, B, D).
 
-        On the output layer the intra-layer current of step t (Eq. (10)) is added from t = 2 on.
+        On the output layer the intra-layer current I_t of Eq. (10) is added from t = 2 on; every other
+        layer (and an output layer without intra-layer connections) runs the neuron's fused T-step train
+        when it has one.
         """
-        step, params = self.neuron.step, self.neuron.params
-        intra = self.intra if with_intra else None
-        if intra is None and self.neuron.train is not None:
-            return self.neuron.train(currents, params)
-        state = self.neuron.initial_state(currents[:, 0], params)
+        neuron = self.neuron
+        intra = self.intra if output_layer else None
+        if intra is None and neuron.train is not None:
+            return neuron.train(currents, neuron.params)
+        state = neuron.initial_state(currents[:, 0], neuron.params)
         weight = intra.masked_weight() if intra is not None else None
         bias = intra.masked_bias() if intra is not None else None
         spikes, intra_current = [], None
         timesteps = currents.shape[1]
         for t in range(timesteps):
             current = currents[:, t] if intra_current is None else currents[:, t] + intra_current
-            step_spikes, state = step(current, state, params)
+            step_spikes, state = neuron.step(current, state, neuron.params)
             spikes.append(step_spikes)
             if intra is not None and t < timesteps - 1:
                 intra_current = intra(step_spikes, weight, bias)
         return torch.stack(spikes, dim=1)
 
-    def _run_fast(self, state: torch.Tensor) -> ActorOutput:
+    def _run_layer_major(self, state: torch.Tensor) -> ActorOutput:
         encoded = self.encoder(state)
         values, constant = encoded.values, encoded.constant
-        timesteps = self.config.timesteps
         inputs = []
         for index, layer in enumerate(self.layers):
             inputs.append(values)
             currents = layer(values)
             if constant:
-                currents = currents.unsqueeze(1).expand(-1, timesteps, *currents.shape[1:])
-            values = self._spiking_loop(currents, with_intra=index == len(self.layers) - 1)
+                currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
+            values = self.layer_spikes(currents, output_layer=index == len(self.layers) - 1)
             constant = False
         output, voltages = self.decoder(values)
         return ActorOutput(self.squash(output), tuple(inputs), values, voltages)
 
-    def _run_reference(self, state: torch.Tensor) -> ActorOutput:
-        """Algorithm 1, one time step at a time."""
-        encoded = self.encoder(state)
-        step, params = self.neuron.step, self.neuron.params
-        last = len(self.layers) - 1
-        timesteps = self.config.timesteps
-        layer_states: list = [None] * len(self.layers)
-        inputs: list[list[torch.Tensor]] = [[] for _ in self.layers]
-        output_spikes, voltages = [], []
-        intra_current = None
-        voltage = None
-        for t in range(timesteps):
-            spikes = encoded.values if encoded.constant else encoded.values[:, t]
-            for index, layer in enumerate(self.layers):
-                inputs[index].append(spikes)
-                current = layer(spikes)
-                if index == last and intra_current is not None:
-                    current = current + intra_current
-                if layer_states[index] is None:
-                    layer_states[index] = self.neuron.initial_state(current, params)
-                spikes, layer_states[index] = step(current, layer_states[index], params)
-            if self.intra is not None and t != timesteps - 1:
-                intra_current = self.intra(spikes)
-            output_spikes.append(spikes)
-            if self.decoder.statistic != "fr":
-                drive = self.decoder.group_fc(spikes)
-                voltage = torch.zeros_like(drive) if voltage is None else voltage
-                voltage = li_step(drive, voltage, self.decoder.alpha_voltage, self.decoder.reset)
-                voltages.append(voltage)
-        spike_train = torch.stack(output_spikes, dim=1)
-        if self.decoder.statistic == "fr":
-            output, voltage_trace = self.decoder(spike_train)
-        else:
-            voltage_trace = torch.stack(voltages, dim=1)
-            output = select_statistic(voltage_trace, self.decoder.statistic)
-        layer_inputs = tuple(
-            per_layer[0] if (index == 0 and encoded.constant) else torch.stack(per_layer, dim=1)
-            for index, per_layer in enumerate(inputs)
-        )
-        return ActorOutput(self.squash(output), layer_inputs, spike_train, voltage_trace)
-
     def run(self, state: torch.Tensor, engine: str | None = None) -> ActorOutput:
-        """Normalised state (K, B, N) → :class:`ActorOutput`, with ``engine`` 'fast' or 'reference'."""
-        engine = engine or self.engine
-        return self._run_reference(state) if engine == "reference" else self._run_fast(state)
+        """Normalised state (K, B, N) → :class:`ActorOutput`; ``engine`` overrides :attr:`engine` for analysis."""
+        if checked_engine(engine or self.engine) == "reference":
+            from .reference import run_reference  # the oracle module builds on this one
+
+            return run_reference(self, state)
+        return self._run_layer_major(state)
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         """Normalised state (K, B, N) → action (K, B, M)."""
         return self.run(state).action
 
 
-class DeepActor(_ActionScaling):
-    """DAN, TD3's deep actor network: (N, 256, ReLU, 256, ReLU, M) then tanh and the action scale."""
+class DeepActor(_Actor):
+    """DAN, TD3's deep actor network: (N, 256, ReLU, 256, ReLU, M) then tanh and the action scale.
 
-    def __init__(self, config: ActorConfig, state_dim: int, action_dim: int,
-                 action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int]):
-        super().__init__(action_scale, action_offset)
-        self.config, self.state_dim, self.action_dim = config, state_dim, action_dim
-        self.engine = "fast"
-        self.mlp = EnsembleMLP(len(seeds), [state_dim, *config.hidden, action_dim])
+    It has one forward pass; ``engine`` is accepted so that every actor is built and run the same way.
+    """
+
+    def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
+                 action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast"):
+        super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
+        self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim))
         self.mlp.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def run(self, state: torch.Tensor, engine: str | None = None) -> ActorOutput:
+        checked_engine(engine or self.engine)
         return ActorOutput(self.squash(self.mlp(state)), (state,), None, None)
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
@@ -222,8 +175,10 @@ class DeepActor(_ActionScaling):
 
 
 def build_actor(config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
-                action_offset: Sequence[float] | None = None, seeds: Sequence[int] = (0,)) -> nn.Module:
-    """The actor ``config`` describes, for K = len(seeds) seeds, each initialised from its seed."""
+                action_offset: Sequence[float] | None = None, seeds: Sequence[int] = (0,),
+                engine: str = "fast") -> SpikingActor | DeepActor:
+    """The actor ``config`` describes, for K = len(seeds) seeds, each initialised from its seed; ``engine``
+    ('fast' or 'reference', :data:`ilcsan.config.ENGINES`) is its forward pass."""
     action_offset = [0.0] * action_dim if action_offset is None else action_offset
     cls = DeepActor if config.network == "deep" else SpikingActor
-    return cls(config, state_dim, action_dim, action_scale, action_offset, seeds)
+    return cls(config, state_dim, action_dim, action_scale, action_offset, seeds, engine)

@@ -26,7 +26,6 @@ from .neurons import li_step
 __all__ = ["DECODERS", "PopulationDecoder", "select_statistic", "integrate_voltages"]
 
 
-
 def select_statistic(voltages: torch.Tensor, statistic: str) -> torch.Tensor:
     """O = Stat(V_1, …, V_T) over dimension 1 of ``voltages`` (K, T, B, M) → (K, B, M)."""
     if statistic == "last":
@@ -40,7 +39,7 @@ def select_statistic(voltages: torch.Tensor, statistic: str) -> torch.Tensor:
 
 
 def integrate_voltages(inputs: torch.Tensor, alpha_voltage: float, reset: float = 0.0) -> torch.Tensor:
-    """Run the LI neuron over T steps: inputs X (K, T, B, M) → voltages V (K, T, B, M), V_0 = V_reset."""
+    """Run the LI neuron (Eq. (7)) over T steps: inputs X (K, T, B, M) → voltages V (K, T, B, M), V_0 = V_reset."""
     voltage = torch.full_like(inputs[:, 0], reset)
     voltages = []
     for t in range(inputs.shape[1]):
@@ -50,7 +49,11 @@ def integrate_voltages(inputs: torch.Tensor, alpha_voltage: float, reset: float 
 
 
 class PopulationDecoder(nn.Module):
-    """Group FC W_D (K, M, P), b_D (K, M) followed by the LI neuron or the firing rate."""
+    """Group FC W_D (K, M, P), b_D (K, M) followed by the LI neuron or the firing rate.
+
+    ``forward`` decodes a whole spike train; the step-by-step engine calls :meth:`voltage_step` at every t and
+    :meth:`readout` at the end, the same two operations ``forward`` is made of.
+    """
 
     def __init__(self, ensemble: int, populations: int, population_size: int, statistic: str,
                  alpha_voltage: float = 1.0, reset: float = 0.0):
@@ -58,6 +61,11 @@ class PopulationDecoder(nn.Module):
         self.statistic, self.alpha_voltage, self.reset = statistic, alpha_voltage, reset
         self.weight = nn.Parameter(torch.empty(ensemble, populations, population_size))
         self.bias = nn.Parameter(torch.empty(ensemble, populations))
+
+    @property
+    def uses_voltages(self) -> bool:
+        """True for the membrane-voltage decoders (Eq. (7)-(8)), False for PopSAN's firing rate."""
+        return self.statistic != "fr"
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:
         """U(−1/√P, 1/√P), like PopSAN's grouped 1-D convolution of kernel P."""
@@ -73,9 +81,23 @@ class PopulationDecoder(nn.Module):
         bias = self.bias.reshape(k, *([1] * (spikes.dim() - 2)), populations)
         return (grouped * weight).sum(-1) + bias
 
+    def voltage_step(self, spikes: torch.Tensor, voltage: torch.Tensor | None) -> torch.Tensor:
+        """One step of the LI neuron driven by the group FC, Eq. (7): spikes S_t (K, B, M·P) and V_{t−1}
+        (None before t = 1, i.e. V_0 = V_reset) → V_t (K, B, M)."""
+        drive = self.group_fc(spikes)
+        voltage = torch.full_like(drive, self.reset) if voltage is None else voltage
+        return li_step(drive, voltage, self.alpha_voltage, self.reset)
+
+    def readout(self, spikes: torch.Tensor, voltages: torch.Tensor | None) -> torch.Tensor:
+        """O (K, B, M): Stat(V_1..V_T) of the voltages (Eq. (8)), or for ``fr`` the group FC of the firing
+        rate of the spike train (K, T, B, M·P)."""
+        if not self.uses_voltages:
+            return self.group_fc(spikes.mean(dim=1))
+        return select_statistic(voltages, self.statistic)
+
     def forward(self, spikes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Output spikes (K, T, B, M·P) → (O (K, B, M), LI voltages (K, T, B, M) or None for ``fr``)."""
-        if self.statistic == "fr":
-            return self.group_fc(spikes.mean(dim=1)), None
-        voltages = integrate_voltages(self.group_fc(spikes), self.alpha_voltage, self.reset)
-        return select_statistic(voltages, self.statistic), voltages
+        voltages = None
+        if self.uses_voltages:
+            voltages = integrate_voltages(self.group_fc(spikes), self.alpha_voltage, self.reset)
+        return self.readout(spikes, voltages), voltages

@@ -9,7 +9,7 @@
 
 An encoder maps a normalised observation (K, B, N) to the input of the backbone over T steps. Analog
 encoders return one (K, B, D) tensor that is the same at every step (the caller may compute its matmul
-once); spiking encoders return (K, T, B, D).
+once); spiking encoders return (K, T, B, D). D is :meth:`ilcsan.config.ActorConfig.encoded_width`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from .neurons import EncoderParams, soft_reset_if_step, straight_through
 
 __all__ = ["ENCODERS", "SPIKING_ENCODERS", "Encoder", "EncodedInput", "gaussian_stimulation",
            "deterministic_spike_train", "bernoulli_spike_train"]
-
 
 
 class EncodedInput(NamedTuple):
@@ -75,10 +74,8 @@ class Encoder(nn.Module):
         if kind.startswith("pop"):
             self.mu = nn.Parameter(torch.empty(ensemble, state_dim, population))
             self.sigma = nn.Parameter(torch.empty(ensemble, state_dim, population))
-            self.output_dim = state_dim * population
         else:
             self.mu = self.sigma = None
-            self.output_dim = state_dim * (2 if kind == "two-neuron" else 1)
 
     @property
     def spiking(self) -> bool:

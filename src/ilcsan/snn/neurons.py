@@ -20,9 +20,12 @@ Equations (paper, Section III-A and Algorithm 1):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import torch
+
+from ..config import ActorConfig
 
 
 class _RectangularSpike(torch.autograd.Function):
@@ -190,7 +193,7 @@ def dynamic_initial_state(like: torch.Tensor, params: DynamicParams) -> DynamicS
 def dynamic_step(
     input_current: torch.Tensor, state: DynamicState, params: DynamicParams
 ) -> tuple[torch.Tensor, DynamicState]:
-    """One step of MDC-SAN's two-variable dynamic neuron (SPEC, "Baselines").
+    """One step of MDC-SAN's two-variable dynamic neuron (Zhang et al. 2022, the paper's Section V baseline).
 
     C_t = α_C C_{t-1} + X_t;   v̂ = v_{t-1}(1 − s_{t-1}) + θ_r s_{t-1};   û = u_{t-1} + θ_s s_{t-1}
     v_t = v̂ + (v̂² − v̂ − û + C_t);   u_t = û + (θ_v v̂ − θ_u û);   s_t = Θ(v_t − V_th)
@@ -202,6 +205,36 @@ def dynamic_step(
     recovery = reset_recovery + (params.theta_v * reset_voltage - params.theta_u * reset_recovery)
     spikes = heaviside_spike(voltage - params.threshold, params.surrogate_width)
     return spikes, DynamicState(current, voltage, recovery, spikes)
+
+
+# ------------------------------------------------------------------------------ the actor's neuron
+NeuronParams = CLIFParams | DynamicParams
+NeuronState = CLIFState | DynamicState
+
+
+class NeuronModel(NamedTuple):
+    """A spiking neuron as pure functions, so both engines of the actor fire by the same rule.
+
+    ``step(X_t, state, params) -> (S_t, state)`` is one update (Eq. (1)-(3)); ``initial_state(like, params)``
+    the state before t = 1; ``train(X, params)`` (CLIF only, else None) runs all T steps of a layer at once
+    and equals ``step`` applied T times.
+    """
+
+    step: Callable[[torch.Tensor, NeuronState, NeuronParams], tuple[torch.Tensor, NeuronState]]
+    initial_state: Callable[[torch.Tensor, NeuronParams], NeuronState]
+    params: NeuronParams
+    train: Callable[[torch.Tensor, NeuronParams], torch.Tensor] | None = None
+
+
+def neuron_model(config: ActorConfig) -> NeuronModel:
+    """The neuron of ``config.neuron``: CLIF (the paper's) or MDC-SAN's dynamic neuron, with its constants."""
+    if config.neuron == "dynamic":
+        return NeuronModel(dynamic_step, dynamic_initial_state,
+                           DynamicParams(alpha_current=config.alpha_c, threshold=config.v_th,
+                                         surrogate_width=config.surrogate_width))
+    return NeuronModel(clif_step, clif_initial_state,
+                       CLIFParams(config.alpha_c, config.alpha_v, config.v_th, 0.0, config.surrogate_width),
+                       clif_train)
 
 
 # ------------------------------------------------------------------------------------------- LI

@@ -1,0 +1,164 @@
+"""The deployed actor: a fully spiking actor loaded from a bundle; ``act`` is the deployed call."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .bundle_format import (
+    backbone_synapses,
+    checked_meta,
+    decoder_synapses,
+    intra_synapses,
+    read_array,
+    read_bundle,
+)
+from .errors import UserError
+from .host import deterministic_spike_train, gaussian_stimulation, li_voltages, normalize, select_statistic, squash
+from .neurons import CLIF, Dynamic
+from .pipeline import Workspace
+from .synapses import Synapses, accumulate_steps
+
+
+@dataclass
+class DeployedActor:
+    """A fully spiking actor loaded from a deploy bundle; ``act`` is the deployed call.
+
+    ``last_sop`` / ``last_sop_by_layer`` count the accumulates of the last inference, ``total_sop``,
+    ``total_sop_by_layer`` and ``inferences`` add up over calls. Buffers are preallocated: use one
+    instance per thread.
+    """
+
+    meta: dict[str, Any]
+    mu: np.ndarray
+    sigma: np.ndarray
+    layers: tuple[Synapses, ...]
+    intra: Synapses | None
+    decoder: Synapses
+    neuron: CLIF | Dynamic
+    obs_mean: np.ndarray
+    obs_std: np.ndarray
+    obs_clip: float
+    action_scale: np.ndarray
+    action_offset: np.ndarray
+    last_sop_by_layer: dict[str, int] = field(default_factory=dict)
+    total_sop_by_layer: dict[str, int] = field(default_factory=dict)
+    total_sop: int = 0
+    inferences: int = 0
+    workspace: Workspace = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.workspace = Workspace(self.timesteps, self.layers, self.neuron, self.intra)
+
+    # ---------------------------------------------------------------------------- construction
+    @classmethod
+    def load(cls, path: str | Path) -> DeployedActor:
+        """Read a bundle (``np.load(allow_pickle=False)``: data only) and check every array and key."""
+        arrays, meta = read_bundle(path)
+        return cls.from_arrays(arrays, meta, source=str(path))
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any],
+                    source: str = "bundle") -> DeployedActor:
+        """Build the runtime from bundle arrays and metadata (what :mod:`ilcsan.deploy.bundle` writes)."""
+        meta = checked_meta(meta, source)
+        state_dim, action_dim = len(meta["obs_mean"]), len(meta["action_scale"])
+        population_in, population_out = int(meta["population_in"]), int(meta["population_out"])
+        mu = read_array(arrays, "encoder.mu", (state_dim, population_in), source)
+        sigma = read_array(arrays, "encoder.sigma", (state_dim, population_in), source)
+        layers = backbone_synapses(arrays, state_dim * population_in, action_dim * population_out, source)
+        intra = intra_synapses(arrays, meta, action_dim, population_out, source)
+        decoder = decoder_synapses(arrays, action_dim, population_out, source)
+        return cls(dict(meta), mu, sigma, layers, intra, decoder, _neuron(meta),
+                   np.asarray(meta["obs_mean"], np.float64), np.asarray(meta["obs_std"], np.float64),
+                   float(meta["obs_clip"]), np.asarray(meta["action_scale"], np.float32),
+                   np.asarray(meta["action_offset"], np.float32))
+
+    # -------------------------------------------------------------------------------- properties
+    @property
+    def state_dim(self) -> int:
+        return int(self.obs_mean.shape[0])
+
+    @property
+    def action_dim(self) -> int:
+        return int(self.action_scale.shape[0])
+
+    @property
+    def timesteps(self) -> int:
+        return int(self.meta["T"])
+
+    @property
+    def last_sop(self) -> int:
+        """Synaptic operations (accumulates) of the last inference."""
+        return sum(self.last_sop_by_layer.values())
+
+    # ------------------------------------------------------------------------------------- acting
+    def act(self, observation: Any) -> np.ndarray:
+        """Deterministic action for one observation (N,) → (M,), or a batch (B, N) → (B, M), float32."""
+        batch, single = self._checked_observation(observation)
+        if single:
+            return self._act_one(batch[0])
+        return np.stack([self._act_one(row) for row in batch])
+
+    def normalize(self, observation: np.ndarray) -> np.ndarray:
+        """Host: the frozen normaliser clip((s − mean)/std, ±clip) → float32 (as Policy.normalize)."""
+        return normalize(observation, self.obs_mean, self.obs_std, self.obs_clip)
+
+    def spike_trains(self, observation: Any) -> list[np.ndarray]:
+        """Encoder output and every layer's spikes (T, D) for one raw observation (copies, for analysis)."""
+        batch, _ = self._checked_observation(observation)
+        self._forward(self.normalize(batch[0]))
+        return [train.copy() for train in self.workspace.trains]
+
+    def _act_one(self, observation: np.ndarray) -> np.ndarray:
+        return squash(self._forward(self.normalize(observation)), self.action_scale, self.action_offset)
+
+    def _forward(self, state: np.ndarray) -> np.ndarray:
+        """Normalised state (N,) → O (M,); the spike trains stay in ``workspace.trains`` until the next call."""
+        workspace = self.workspace
+        stimulation = gaussian_stimulation(state, self.mu, self.sigma)
+        deterministic_spike_train(stimulation, self.timesteps, float(self.meta["enc_v_th"]), out=workspace.encoded)
+        workspace.run()
+        trains = workspace.trains
+        counts = {layer.name: int(np.count_nonzero(spikes)) * layer.fan_out
+                  for layer, spikes in zip(self.layers, trains, strict=False)}
+        if self.intra is not None:  # output spikes of steps 1..T−1 feed I_2..I_T
+            counts[self.intra.name] = int(np.count_nonzero(trains[-1][:-1])) * self.intra.fan_out
+        drive, counts[self.decoder.name] = accumulate_steps(self.decoder, trains[-1])
+        voltages = li_voltages(drive, float(self.meta["alpha_v_li"]))
+        self._count(counts)
+        return select_statistic(voltages, self.meta["statistic"])
+
+    def _count(self, counts: dict[str, int]) -> None:
+        self.last_sop_by_layer = counts
+        for name, count in counts.items():
+            self.total_sop_by_layer[name] = self.total_sop_by_layer.get(name, 0) + count
+        self.total_sop += sum(counts.values())
+        self.inferences += 1
+
+    def _checked_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
+        try:
+            array = np.asarray(observation, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise UserError(f"observation must be numbers of shape ({self.state_dim},) or "
+                            f"(B, {self.state_dim})") from None
+        if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
+            raise UserError(f"observation has shape {array.shape}; this actor expects ({self.state_dim},) "
+                            f"or (B, {self.state_dim})")
+        if not np.all(np.isfinite(array)):
+            raise UserError("observation contains NaN or inf; check the sensor readings before acting")
+        return (array[None] if array.ndim == 1 else array), array.ndim == 1
+
+
+def _neuron(meta: Mapping[str, Any]) -> CLIF | Dynamic:
+    """The backbone's neuron and its constants from the meta (the dynamic neuron's θ default to MDC-SAN's)."""
+    if meta["neuron"] == "clif":
+        return CLIF(float(meta["alpha_c"]), float(meta["alpha_v"]), float(meta["v_th"]))
+    defaults = Dynamic()
+    return Dynamic(float(meta["alpha_c"]), float(meta["v_th"]),
+                   *(float(meta.get(name, getattr(defaults, name))) for name in ("theta_v", "theta_u", "theta_r",
+                                                                                 "theta_s")))
