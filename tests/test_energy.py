@@ -15,16 +15,15 @@ from ilcsan.analysis.energy import (
     GROUP_FC,
     INTRA_FC,
     PAPER_COSTS,
-    TASK_ORDER,
     count_operations,
     energy_report,
-    energy_table,
     firing_rates,
     intra_synapses,
     measure_firing_rates,
     paper_report,
     synaptic_layers,
 )
+from ilcsan.analysis.energy_tables import TASK_ORDER, energy_table
 from ilcsan.analysis.paper import ENERGY_NJ, FIRING_RATES, OP_COUNTS
 from ilcsan.cli.grid_commands import cmd_energy
 from ilcsan.errors import UserError

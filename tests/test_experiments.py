@@ -12,21 +12,21 @@ import pytest
 
 from ilcsan.cli import main
 from ilcsan.errors import UserError
-from ilcsan.experiments import coordinator as experiments
-from ilcsan.experiments.coordinator import (
-    GridOptions,
+from ilcsan.experiments.backends import RayBackend, ray_node_address
+from ilcsan.experiments.coordinator import run_grid
+from ilcsan.experiments.estimate import estimate_hours, list_tables
+from ilcsan.experiments.grid import GridOptions, expand_grid
+from ilcsan.experiments.jobs import (
     Job,
+    JobOutcome,
     RunState,
     balance_jobs,
-    estimate_hours,
-    expand_grid,
-    format_duration,
     format_seeds,
     group_jobs,
-    list_tables,
-    run_grid,
+    run_job,
     run_state,
 )
+from ilcsan.experiments.progress import format_duration
 from ilcsan.experiments.tables import TABLES, load_grid
 from ilcsan.rl.training import Trainer, train
 
@@ -114,8 +114,22 @@ def test_rows_without_code_are_left_out_and_refused_by_name(tmp_path):
         expand_grid(TABLES["perf"], tmp_path, GridOptions(rows=("ac-bcq",)))
 
 
+def test_a_tables_rows_run_on_tasks_outside_the_table(tmp_path):
+    options = GridOptions(seeds=(0,), rows=("self",), tasks=("invertedDoublePendulum", "Pendulum-v1", "hopper"))
+    grid = expand_grid(TABLES["intra"], tmp_path, options, "intra")
+    assert grid.spec.tasks == ("InvertedDoublePendulum", "Pendulum-v1", "Hopper"), "paper tasks by their short name"
+    assert [run.key for run in grid.runs] == ["InvertedDoublePendulum/self/seed0", "Pendulum-v1/self/seed0",
+                                              "Hopper/self/seed0"]
+    run = grid.runs[0]
+    assert run.directory == tmp_path.absolute() / "intra" / "InvertedDoublePendulum" / "self" / "seed0"
+    assert (run.config.task, run.config.table, run.config.row, run.config.actor.intra) == \
+        ("InvertedDoublePendulum", "intra", "self", "self")
+    assert grid.report_table == "intra", "the report keeps the paper's layout and adds the tasks as columns"
+
+
 @pytest.mark.parametrize("options, message", [
-    (GridOptions(tasks=("Pong",)), "no task 'Pong'"),
+    (GridOptions(tasks=("Pong",)), "unknown task 'Pong'"),
+    (GridOptions(tasks=("CartPole-v1",)), "Discrete action space"),
     (GridOptions(rows=("nope",)), "no row 'nope'"),
     (GridOptions(td3={"warmup": 3}), "unknown TD3 setting"),
 ])
@@ -260,10 +274,10 @@ class FlakyBackend:
     def outcome(self, handle):
         job = self.jobs[handle]
         if self.attempts[job] == 1:
-            return experiments.JobOutcome(error="the worker process died", crashed=True)
+            return JobOutcome(error="the worker process died", crashed=True)
         if job.row == self.failing_row:
-            return experiments.JobOutcome(error="step 150: non-finite reward", diverged=True)
-        return experiments.run_job(job)
+            return JobOutcome(error="step 150: non-finite reward", diverged=True)
+        return run_job(job)
 
     def interrupt(self, handles):
         pass
@@ -289,8 +303,8 @@ def test_a_dead_worker_is_retried_and_a_failed_job_is_reported(tmp_path):
 def test_grid_runs_on_a_local_ray_bound_to_loopback(tmp_path):
     pytest.importorskip("ray", reason="Ray is not installed (pip install 'ilcsan[ray]'); CI installs it")
     grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",))
-    backend = experiments.RayBackend(workers=2)
-    assert experiments.ray_node_address() == "127.0.0.1", "a Ray we start listens on the loopback only"
+    backend = RayBackend(workers=2)
+    assert ray_node_address() == "127.0.0.1", "a Ray we start listens on the loopback only"
     assert backend.slots == 2
     lines: list[str] = []
     summary = run_grid(grid, backend, log=lines.append, poll_seconds=0.2)
@@ -341,7 +355,7 @@ def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch
 @pytest.mark.parametrize("argv, fragments", [
     (("reproduce", "tabel"), ("no table 'tabel'", "perf")),
     (("reproduce",), ("name a table",)),
-    (("reproduce", "intra", "--tasks", "Pong"), ("no task 'Pong'",)),
+    (("reproduce", "intra", "--tasks", "Pong"), ("unknown task 'Pong'",)),
     (("reproduce", "intra", "--seeds", "3-1"), ("--seeds",)),
     (("reproduce", "intra", "--backend", "slurm"), ("--backend 'slurm'",)),
     (("reproduce", "intra", "--address", "10.0.0.1:6379"), ("--address is for --backend ray",)),
@@ -350,6 +364,23 @@ def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch
 def test_cli_mistakes_are_one_line(capsys, argv, fragments):
     code, _, err = run_cli(capsys, *argv)
     assert_one_line_error(code, err, *fragments)
+
+
+def test_cli_runs_a_paper_tables_row_on_another_task_and_reports_it(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, stdout, _ = run_cli(capsys, "reproduce", "intra", "--tasks", "Pendulum-v1", "--rows", "self",
+                              "--seeds", "0", "--steps", "150", "--start-steps", "50", "--eval-every", "150",
+                              "--eval-episodes", "1", "--workers", "1", "--out", str(out))
+    assert code == 0, stdout
+    config = json.loads((out / "intra" / "Pendulum-v1" / "self" / "seed0" / "config.json").read_text())
+    assert (config["task"], config["table"], config["row"], config["actor"]["intra"]) == \
+        ("Pendulum-v1", "intra", "self", "self")
+    lines = (out / "intra" / "report.md").read_text().splitlines()
+    header = next(line for line in lines if line.startswith("| Row"))
+    assert header == "| Row | Ant | HalfCheetah | Hopper | Walker2d | Pendulum-v1 | APR |"
+    row = next(line for line in lines if line.startswith("| I\\_self"))
+    ours = row.split(" | ")[5]
+    assert "(n=1)" in ours and "paper" not in ours, "our value, and no paper value for a task the paper did not run"
 
 
 def test_ray_backend_without_ray_says_how_to_install_it(tmp_path, capsys, monkeypatch):

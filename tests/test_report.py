@@ -12,22 +12,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ilcsan.analysis.report import (
-    build_table,
-    collect_runs,
-    curve,
-    format_stat,
-    plot_curves,
-    render_csv,
-    render_latex,
-    render_markdown,
-    report_tables,
-    resolve_table,
-    scan_runs,
-    smooth,
-    write_report,
-)
+from ilcsan.analysis.collect import collect_runs, scan_runs
+from ilcsan.analysis.curves import curve, plot_curves, smooth, smoothing_window
+from ilcsan.analysis.render import format_stat, render_csv, render_latex, render_markdown
+from ilcsan.analysis.report import report_layout, write_report
+from ilcsan.analysis.tables import build_table, report_tables
 from ilcsan.cli.grid_commands import cmd_report
+from ilcsan.experiments.tables import TABLES
 
 HEADER = "step,eval_return_mean,eval_return_std,eval_length_mean,wall_seconds,steps_per_second"
 
@@ -123,6 +114,25 @@ def test_missing_cells_say_so_and_still_show_the_paper(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------------------------------------
 # APR and best marks
+
+
+def test_a_task_outside_the_table_is_an_extra_column_without_the_papers_numbers(tmp_path: Path) -> None:
+    # `ilcsan reproduce intra --tasks InvertedDoublePendulum,Pendulum-v1`: the table's rows on other tasks
+    intra_run(tmp_path, "InvertedDoublePendulum", "self", 0, [8000, 9300])
+    intra_run(tmp_path, "Pendulum-v1", "self", 0, [-900, -150])
+    intra_run(tmp_path, "Hopper", "self", 0, [3000, 3400])
+    result = build_table(collect_runs(tmp_path), "intra")
+    assert result.tasks == (*TABLES["intra"].tasks, "InvertedDoublePendulum", "Pendulum-v1")
+    outside = result.cell("self", "Pendulum-v1")
+    assert outside.mean == -150 and outside.n == 1 and outside.paper is None
+    assert result.cell("self", "InvertedDoublePendulum").paper is None
+    assert result.cell("self", "Hopper").paper is not None, "the table's own tasks keep the paper's numbers"
+    header = next(line for line in render_markdown(result).splitlines() if line.startswith("| Row"))
+    assert header.endswith("| InvertedDoublePendulum | Pendulum-v1 | APR |")
+    row = next(line for line in render_markdown(result).splitlines() if line.startswith("| I\\_self"))
+    assert "-150 ± 0** (n=1) |" in row and row.count("paper") == 4 + 1, "paper values for the 4 tasks and APR"
+    assert ("intra", "self", "Pendulum-v1") in {(line[0], line[1], line[3]) for line in
+                                                csv.reader(render_csv(result).splitlines()[1:])}
 
 
 def test_apr_against_dan_only_over_tasks_where_both_exist(tmp_path: Path) -> None:
@@ -304,9 +314,9 @@ def test_cmd_report_accepts_a_grid_file_and_rejects_unknown_tables(tmp_path: Pat
     assert "1 run(s) found" in capsys.readouterr().out
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert "| ILC-SAN | **3500 ± 0** (n=1) | — |" in markdown
-    assert resolve_table("mine", collect_runs(runs)) == "mine"  # a tag found among the runs
+    assert report_layout("mine", collect_runs(runs)) == "mine"  # a tag found among the runs
     with pytest.raises(ValueError, match="no table 'intro'"):
-        resolve_table("intro", collect_runs(runs))
+        report_layout("intro", collect_runs(runs))
 
 
 def test_report_without_table_groups_runs_by_their_tags(tmp_path: Path) -> None:
@@ -408,7 +418,5 @@ def test_write_report_on_an_empty_directory(tmp_path: Path) -> None:
 
 
 def test_short_curves_are_not_smoothed_and_long_ones_are() -> None:
-    from ilcsan.analysis.report import smoothing_window
-
     assert smoothing_window(6) == 1 and smoothing_window(19) == 1
     assert smoothing_window(40) == 2 and smoothing_window(100) == 5 and smoothing_window(1000) == 5

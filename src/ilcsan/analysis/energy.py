@@ -12,7 +12,7 @@ accumulate), counting one FLOP as one MAC and one SOP as one AC.
 Layers: FC1 (N·P_in, H_1), FC2 … FC_L (hidden), FC_{L+1} (H_L, M·P_out) — FC3 for the paper's 2×256 —
 Group FC (M groups of (P_out, 1): M·P_out synapses) and Intra FC (M groups of (P_out, P_out)).
 
-What each input costs (our choices, following the paper and the SPEC):
+What each input costs (our choices, following the paper):
 
 * spikes in (encoder ``pop-det``/``pop-prob``, every CLIF/dynamic layer): SOP = T·fr_in·synapses,
   i.e. exactly the accumulates of the spikes (each spike reaches its fan-out once). Measured rates
@@ -58,8 +58,7 @@ inference, so its FC is Din·Dout FLOP: we follow the stated formula and Table p
 
 from __future__ import annotations
 
-import statistics
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -71,8 +70,6 @@ from .paper import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES
 
 GROUP_FC = "Group FC"
 INTRA_FC = "Intra FC"
-LABELS = {"dan": "DAN", "popsan": "PopSAN", "ilc-san": "ILC-SAN", "mdc-san": "MDC-SAN", "akl": "Akl et al."}
-TASK_ORDER = ("Ant", "HalfCheetah", "Hopper", "Walker2d")
 INTRA_SYNAPSES_PER_POPULATION = {  # (self, lateral) kept → synapses of one P×P block
     (True, True): lambda p: p * p, (True, False): lambda p: p, (False, True): lambda p: p * (p - 1),
     (False, False): lambda p: 0,
@@ -173,15 +170,13 @@ def intra_synapses(intra: str, populations: int, population_size: int) -> int:
 
 
 def synaptic_layers(config: ActorConfig, state_dim: int, action_dim: int) -> tuple[SynapticLayer, ...]:
-    """The synaptic layers of an actor, with shapes and input kinds, in the paper's order."""
+    """The synaptic layers of an actor, with shapes and input kinds, in the paper's order; the backbone's
+    widths are :meth:`ActorConfig.layer_sizes` (the encoder's output width first)."""
+    sizes = config.layer_sizes(state_dim, action_dim)
     if config.network == "deep":
-        sizes = [state_dim, *config.hidden, action_dim]
         return tuple(SynapticLayer(name, f"({a}, {b})", a * b, "dense")
                      for name, a, b in zip(fc_names(len(sizes) - 1), sizes[:-1], sizes[1:], strict=True))
-    input_dim = {"layer": state_dim, "two-neuron": 2 * state_dim}.get(config.encoder,
-                                                                      state_dim * config.population_in)
-    out = action_dim * config.population_out
-    sizes = [input_dim, *config.hidden, out]
+    out = sizes[-1]
     layers = []
     for index, (name, a, b) in enumerate(zip(fc_names(len(sizes) - 1), sizes[:-1], sizes[1:], strict=True)):
         kind = "spikes" if index > 0 or config.encoder in SPIKING_ENCODERS else "analog"
@@ -230,7 +225,7 @@ class _SpikeTally:
         self.slots[name] = self.slots.get(name, 0.0) + slots
 
     def add(self, output) -> None:
-        """Add one :class:`~ilcsan.actors.ActorOutput` of ensemble size 1 (any batch)."""
+        """Add one :class:`~ilcsan.snn.actor.ActorOutput` of ensemble size 1 (any batch)."""
         for name, inputs in zip(self.names, output.layer_inputs, strict=True):
             if inputs.dim() == 4:  # (K, T, B, D) spikes; (K, B, D) is an analog input
                 self._add(name, float(inputs[0].double().sum()), float(inputs[0].numel()))
@@ -318,123 +313,3 @@ def paper_report(preset: str, task: str) -> EnergyReport:
     if row.intra_fc is not None:
         rates[INTRA_FC] = row.intra_fc
     return analytic_report(preset, task, spec.state_dim, spec.action_dim, rates, source="paper")
-
-
-# ------------------------------------------------------------------------------------- tables
-def average_reports(reports: Iterable[EnergyReport]) -> list[EnergyReport]:
-    """One report per (actor, task): rates and counts averaged over runs (the paper averages 10 seeds)."""
-    groups: dict[tuple[str, str], list[EnergyReport]] = {}
-    for report in reports:
-        groups.setdefault((report.label, report.task), []).append(report)
-    averaged = []
-    for group in groups.values():
-        first = group[0]
-        if len(group) == 1:
-            averaged.append(first)
-            continue
-        if any([layer.name for layer in r.layers] != [layer.name for layer in first.layers] for r in group):
-            raise UserError(f"runs of {first.label} on {first.task} have different layers; compare like with like")
-        layers = []
-        for index, layer in enumerate(first.layers):
-            members = [r.layers[index] for r in group]
-            rate = None if layer.rate is None else statistics.fmean(m.rate for m in members)
-            layers.append(layer._replace(rate=rate, sop=statistics.fmean(m.sop for m in members),
-                                         flop=statistics.fmean(m.flop for m in members)))
-        averaged.append(EnergyReport(first.label, first.task, first.state_dim, first.action_dim, first.timesteps,
-                                     tuple(layers), sum(r.inferences for r in group),
-                                     ", ".join(r.source for r in group), len(group)))
-    return averaged
-
-
-def _task_key(task: str) -> tuple[int, str]:
-    return (TASK_ORDER.index(task) if task in TASK_ORDER else len(TASK_ORDER), task)
-
-
-def _label_key(label: str) -> tuple[int, str]:
-    order = list(LABELS)
-    return (order.index(label) if label in order else len(order), label)
-
-
-def _markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(" --- " for _ in header) + "|"]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
-def _ops(layer: LayerCount) -> str:
-    return f"{layer.sop:.0f} SOP" if layer.input_kind == "spikes" else f"{layer.flop:.0f} FLOP"
-
-
-def _total(report: EnergyReport) -> str:
-    parts = []
-    if report.total_sop or report.total_flop == 0:
-        parts.append(f"{report.total_sop:.0f} SOP")
-    if report.total_flop:
-        parts.append(f"{report.total_flop:.0f} FLOP")
-    return " + ".join(parts)
-
-
-def energy_table(reports: Iterable[EnergyReport], costs: Sequence[EnergyCosts] = COSTS) -> str:
-    """Tables fr, op and power in the paper's layout (markdown), runs of one actor/task averaged.
-
-    Table power has a column per actor (DAN, PopSAN, ILC-SAN, …); a DAN column missing for a task is
-    filled analytically (a DAN's FLOP count does not depend on its weights) and marked with *.
-    """
-    averaged = sorted(average_reports(reports), key=lambda r: (_task_key(r.task), _label_key(r.label)))
-    if not averaged:
-        raise UserError("no runs to tabulate")
-    spiking = [r for r in averaged if r.label != "dan" and any(l.input_kind != "dense" for l in r.layers)]
-    columns = []
-    for report in spiking:
-        for layer in report.layers:
-            if layer.name not in columns:
-                columns.append(layer.name)
-    columns.sort(key=lambda name: (name in (GROUP_FC, INTRA_FC), name == INTRA_FC, len(name), name))
-    sections = []
-    if spiking:
-        fr_rows, op_rows = [], []
-        for report in spiking:
-            by_name = {layer.name: layer for layer in report.layers}
-            label = LABELS.get(report.label, report.label)
-            fr_rows.append([report.task, label] + [
-                "−" if by_name.get(c) is None or by_name[c].rate is None else f"{100 * by_name[c].rate:.1f}%"
-                for c in columns])
-            op_rows.append([report.task, label] + [_ops(by_name[c]) if c in by_name else "−" for c in columns]
-                           + [_total(report)])
-        sections.append("Table fr: average firing rate of the neuronal layer before each FC layer\n\n"
-                        + _markdown(["Task", "Actor Network", *columns], fr_rows))
-        sections.append("Table op: operations per inference of each FC layer\n\n"
-                        + _markdown(["Task", "Actor Network", *columns, "Total"], op_rows))
-    tasks = sorted({r.task for r in averaged}, key=_task_key)
-    labels = sorted({r.label for r in averaged} | {"dan"}, key=_label_key)
-    by_key = {(r.task, r.label): r for r in averaged}
-    for cost in costs:
-        rows, analytic = [], False
-        for task in tasks:
-            row = [task]
-            for label in labels:
-                report = by_key.get((task, label))
-                if report is None and label == "dan":
-                    some = next(r for r in averaged if r.task == task)
-                    report = analytic_report("dan", task, some.state_dim, some.action_dim, source="analytic")
-                    row.append(f"{report.energy_nj(cost):.1f}*")
-                    analytic = True
-                else:
-                    row.append("−" if report is None else f"{report.energy_nj(cost):.1f}")
-            rows.append(row)
-        note = "\n\n* DAN computed from the task's dimensions (2×256 hidden), not from a run." if analytic else ""
-        sections.append(f"Table power: energy per inference in nJ, {cost.name}\n\n"
-                        + _markdown(["Task", *(LABELS.get(label, label) for label in labels)], rows) + note)
-    return "\n\n".join(sections)
-
-
-def format_report(report: EnergyReport) -> str:
-    """One run: firing rate and operations per layer, totals, nJ per inference under each cost model."""
-    label = LABELS.get(report.label, report.label)
-    measured = f", {report.inferences} inferences" if report.inferences else ""
-    header = f"{report.source or report.task}: {label} on {report.task} (T = {report.timesteps}{measured})"
-    rows = [[layer.name, layer.shape, layer.input_kind,
-             "−" if layer.rate is None else f"{100 * layer.rate:.1f}%", _ops(layer)] for layer in report.layers]
-    table = _markdown(["Layer", "(Din, Dout)", "Input", "fr_in", "Operations"], rows)
-    energy = "; ".join(f"{report.energy_nj(cost):.2f} nJ ({cost.name})" for cost in COSTS)
-    return f"{header}\n\n{table}\n\nTotal: {_total(report)} per inference\nEnergy per inference: {energy}"

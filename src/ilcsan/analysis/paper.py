@@ -17,7 +17,7 @@ Tables, by their LaTeX label:
 ``tab:op``        :data:`OP_COUNTS` — operations per FC layer (SOP, or FLOP for PopSAN's Group FC).
 ``tab:power``     :data:`ENERGY_NJ` — energy per inference in nJ.
 
-Row keys are the stable slugs of :mod:`ilcsan.grids`, so a run made by ``ilcsan reproduce`` finds its
+Row keys are the stable slugs of :mod:`ilcsan.experiments.tables`, so a run made by ``ilcsan reproduce`` finds its
 published cell by ``(table, row slug, task)``. Rewards are "max average reward over 10 random seeds":
 each seed's best evaluation (mean over 10 episodes), then mean ± std over the seeds. APR is printed in
 percent; for ``decode``/``dec_intra``/``intra``/``layer`` it is relative to the DAN row of ``perf``

@@ -18,7 +18,7 @@ def _split(text: str | None) -> tuple[str, ...] | None:
 
 def options_from_args(args):
     """The grid options of parsed ``reproduce`` arguments."""
-    from ..experiments.coordinator import GridOptions
+    from ..experiments.grid import GridOptions
 
     td3 = {} if args.start_steps is None else {"start_steps": args.start_steps}
     return GridOptions(
@@ -29,29 +29,28 @@ def options_from_args(args):
 
 def cmd_reproduce(args) -> int:
     """``ilcsan reproduce TABLE|GRID.toml [options]`` and ``ilcsan reproduce --list``."""
-    from ..experiments.coordinator import TABLES, expand_grid, import_ray, list_tables, resolve_table, run_grid
+    from ..experiments.backends import check_backend_options
+    from ..experiments.coordinator import run_grid
+    from ..experiments.estimate import list_tables
+    from ..experiments.grid import expand_grid, table_to_reproduce
+    from ..experiments.tables import TABLES
 
     if args.list:
-        specs = [resolve_table(args.table)[0]] if args.table else None
+        specs = [table_to_reproduce(args.table)[0]] if args.table else None
         print(list_tables(specs))
         return 0
     if not args.table:
         raise UserError(f"name a table to reproduce ({', '.join(TABLES)}) or a grid file (.toml); "
                         "`ilcsan reproduce --list` shows them")
-    if args.backend not in ("local", "ray"):
-        raise UserError(f"--backend {args.backend!r} is not one of: local, ray")
-    if args.backend == "ray":
-        import_ray()
-    elif args.address:
-        raise UserError("--address is for --backend ray; the local backend runs on this machine")
-    spec, layout = resolve_table(args.table)
+    check_backend_options(args.backend, args.address)
+    spec, layout = table_to_reproduce(args.table)
     grid = expand_grid(spec, args.out, options_from_args(args), layout)
-    from ..rl.training import _check_writable, validate_run
+    from ..rl.settings import validate_run
+    from ..runs.directory import RunDirectory
 
     if grid.runs:  # a bad --matmul: one line before any worker starts (devices are checked by the workers)
         validate_run(dataclasses.replace(grid.runs[0].config, device="cpu"))
-
-    _check_writable(grid.root)  # an unwritable or full --out: one line before any worker starts
+    RunDirectory(grid.root).check_writable()  # an unwritable or full --out: one line before any worker starts
     summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
     if summary.interrupted:
         return 130
@@ -62,10 +61,11 @@ def cmd_reproduce(args) -> int:
 
 def cmd_report(args) -> int:
     """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
-    from ..analysis.report import resolve_table, scan_runs, write_report
+    from ..analysis.collect import scan_runs
+    from ..analysis.report import report_layout, write_report
 
     scan = scan_runs(args.directory)
-    table = resolve_table(args.table, scan.runs)
+    table = report_layout(args.table, scan.runs)
     try:
         paths = write_report(args.directory, args.out, table)
     except OSError as error:  # --out is a file, read-only, full, ...
@@ -81,7 +81,8 @@ def cmd_report(args) -> int:
 def cmd_energy(args) -> int:
     """``ilcsan energy RUN [RUN...] --episodes 1 --seed 0 [--json]``."""
     from .. import load
-    from ..analysis.energy import COSTS, average_reports, energy_table, format_report, measure_energy
+    from ..analysis.energy import COSTS, measure_energy
+    from ..analysis.energy_tables import average_reports, energy_table, format_report
 
     runs = list(getattr(args, "runs", None) or [])
     if not runs:

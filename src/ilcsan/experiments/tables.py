@@ -5,7 +5,7 @@ Each reward table of the paper (``tab:perf``, ``tab:decode``, ``tab:dec_intra``,
 1 000 000 steps, an evaluation of 10 deterministic episodes every 10 000 steps, Section V-A). A row
 is an actor preset plus overrides of the actor's switches; ``ilcsan reproduce`` runs every
 (task, row, seed) and writes ``OUT/<table>/<task>/<row-slug>/seed<k>/``. Row slugs are the keys of
-:mod:`ilcsan.paper`, so the report puts the published number beside ours.
+:mod:`ilcsan.analysis.paper`, so the report puts the published number beside ours.
 
 Actor switches (fields of the actor configuration): ``preset`` ∈ :data:`~ilcsan.config.PRESET_NAMES`; overrides
 ``encoder`` ∈ :data:`ENCODERS`, ``decoder`` ∈ :data:`DECODERS`, ``alpha_v_li`` (float),

@@ -1,0 +1,221 @@
+"""Runs on disk, found and read for a report: every run folder below a directory becomes a :class:`RunRecord`.
+
+Runs are found anywhere below a directory by their ``config.json``. The search does not descend into a
+run (a folder with ``config.json`` and ``metrics.csv`` or ``result.json``), and a folder whose
+``config.json`` sits above other runs is a container (e.g. a grid's own configuration), not a run.
+Each run is read through :class:`~ilcsan.runs.directory.RunDirectory`; what a report needs of it:
+
+``config.json``  ``task`` (short name or Gymnasium id), ``seed`` (int), ``label`` (row label), optionally
+                 ``table`` and ``row`` (the grid's table name and row slug, set by ``ilcsan reproduce``)
+                 and ``actor`` (the actor switches, with ``preset``);
+``metrics.csv``  one line per evaluation, with at least ``step`` and ``eval_return_mean``;
+``result.json``  ``best_return``, ``best_step``, ``steps_done``, ``steps_total``, ``finished``; absent
+                 while the run is still before its first checkpoint (then the best evaluation of
+                 ``metrics.csv`` is used).
+
+A run with a missing or malformed file is skipped and listed with the reason; two runs with the same
+(table, row/label, task, seed) count once (the one with more steps done), the other is listed as a
+duplicate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import UserError
+from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One run read from disk: its identity, its score and its learning curve."""
+
+    path: Path
+    task: str
+    seed: int
+    label: str
+    table: str | None
+    row: str | None
+    actor: Mapping[str, Any] = field(hash=False, compare=False)
+    best_return: float
+    best_step: int
+    steps_done: int
+    steps_total: int | None
+    finished: bool
+    steps: tuple[int, ...]
+    """Evaluation steps from ``metrics.csv`` (empty when it is absent)."""
+    returns: tuple[float, ...]
+    """``eval_return_mean`` at each of ``steps``."""
+
+    @property
+    def preset(self) -> str | None:
+        preset = self.actor.get("preset")
+        return preset if isinstance(preset, str) else None
+
+    @property
+    def is_dan(self) -> bool:
+        """True for a deep-actor (DAN) run: preset ``dan``, row ``dan``, or label ``DAN`` with no actor."""
+        return self.preset == "dan" or self.row == "dan" or (self.preset is None and self.label == "DAN")
+
+
+@dataclass(frozen=True)
+class SkippedRun:
+    """A run directory the report could not use, and why."""
+
+    path: Path
+    reason: str
+
+
+@dataclass(frozen=True)
+class RunScan:
+    """Everything found below a directory: usable runs and skipped ones."""
+
+    runs: tuple[RunRecord, ...]
+    skipped: tuple[SkippedRun, ...]
+
+
+def scan_runs(directory: str | Path) -> RunScan:
+    """Find every run below ``directory`` (by its ``config.json``), read it, and list the skipped."""
+    root = Path(directory)
+    if not root.is_dir():
+        raise UserError(f"run directory {root} does not exist or is not a directory")
+    candidates: list[Path] = []
+    pending: list[Path] = []  # config.json without metrics.csv/result.json: a container or a fresh run
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(name for name in dirnames if not name.startswith("."))
+        if CONFIG not in filenames:
+            continue
+        if METRICS in filenames or RESULT in filenames:
+            dirnames[:] = []  # a run's subdirectories (checkpoints, replay, ...) hold no runs
+            candidates.append(Path(dirpath))
+        else:
+            pending.append(Path(dirpath))
+    found = candidates + pending
+    candidates += [path for path in pending if not any(path in other.parents for other in found)]
+    runs: list[RunRecord] = []
+    skipped: list[SkippedRun] = []
+    for path in sorted(candidates):
+        try:
+            runs.append(read_run(path))
+        except RunFileError as error:
+            skipped.append(SkippedRun(path, str(error)))
+    kept, duplicates = _drop_duplicates(runs)
+    return RunScan(tuple(kept), tuple(skipped + duplicates))
+
+
+def collect_runs(directory: str | Path) -> list[RunRecord]:
+    """Every usable run below ``directory`` (see :func:`scan_runs` for the skipped ones)."""
+    return list(scan_runs(directory).runs)
+
+
+def read_run(directory: str | Path) -> RunRecord:
+    """Read one run folder; raises :class:`~ilcsan.runs.directory.RunFileError` saying what is missing or
+    malformed."""
+    run = RunDirectory(directory)
+    task, seed, label, table, row, actor = _parse_config(run.config_object())
+    steps, returns = run.evaluation_curve()
+    result = run.result()
+    if result is None and not steps:
+        raise RunFileError("neither result.json nor metrics.csv (no evaluation yet)")
+    if result is not None and result.get("best_return") is None and not steps:
+        raise RunFileError("no evaluation yet (result.json has no best_return, metrics.csv no rows)")
+    if result is not None and result.get("best_return") is not None:
+        best_return, best_step, steps_done, steps_total, finished = _parse_result(result, steps)
+    else:  # still running: the best evaluation so far
+        best = int(np.argmax(returns))
+        best_return, best_step, steps_done, steps_total, finished = (
+            returns[best], steps[best], steps[-1], None, False)
+    return RunRecord(
+        path=run.path, task=task, seed=seed, label=label, table=table, row=row, actor=actor,
+        best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
+        finished=finished, steps=steps, returns=returns,
+    )
+
+
+def _optional_str(config: Mapping[str, Any], key: str) -> str | None:
+    value = config.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise RunFileError(f"config.json: {key!r} must be a non-empty string, got {value!r}")
+    return value
+
+
+def _parse_config(config: Mapping[str, Any]) -> tuple[str, int, str, str | None, str | None, dict]:
+    task = _optional_str(config, "task")
+    if task is None:
+        raise RunFileError("config.json: missing 'task'")
+    seed = config.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise RunFileError(f"config.json: 'seed' must be an integer, got {seed!r}")
+    actor = config.get("actor", {})
+    if actor is None:
+        actor = {}
+    if not isinstance(actor, dict):
+        raise RunFileError(f"config.json: 'actor' must be an object, got {actor!r}")
+    table, row = _optional_str(config, "table"), _optional_str(config, "row")
+    label = _optional_str(config, "label") or row or actor.get("preset")
+    if not isinstance(label, str):
+        raise RunFileError("config.json: missing 'label'")
+    return task, seed, label, table, row, actor
+
+
+def _number(value: Any, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise RunFileError(f"result.json: {name!r} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _parse_result(result: Mapping[str, Any],
+                  steps: tuple[int, ...]) -> tuple[float, int, int, int | None, bool]:
+    if "best_return" not in result:
+        raise RunFileError("result.json: missing 'best_return'")
+    best_return = _number(result["best_return"], "best_return")
+    fallback_step = steps[-1] if steps else 0
+    best_step = int(_number(result.get("best_step") or 0, "best_step"))
+    steps_done = int(_number(result.get("steps_done", fallback_step), "steps_done"))
+    total = result.get("steps_total")
+    steps_total = None if total is None else int(_number(total, "steps_total"))
+    finished = result.get("finished", False)
+    if not isinstance(finished, bool):
+        raise RunFileError(f"result.json: 'finished' must be true or false, got {finished!r}")
+    return best_return, best_step, steps_done, steps_total, finished
+
+
+def _actor_key(run: RunRecord) -> str:
+    return json.dumps(run.actor, sort_keys=True, default=str)
+
+
+def row_identity(run: RunRecord) -> tuple:
+    """A grid run's row is its (table, row) tag; any other run's is its label and actor switches."""
+    if run.table and run.row:
+        return run.table, run.row
+    return run.table, run.label, _actor_key(run)
+
+
+def _identity(run: RunRecord) -> tuple:
+    return *row_identity(run), run.task, run.seed
+
+
+def _drop_duplicates(runs: Sequence[RunRecord]) -> tuple[list[RunRecord], list[SkippedRun]]:
+    """Keep one run per (row, task, seed): the one with more steps done (then the first path)."""
+    best: dict[tuple, RunRecord] = {}
+    for run in runs:
+        kept = best.get(_identity(run))
+        if kept is None or run.steps_done > kept.steps_done:
+            best[_identity(run)] = run
+    winners = {id(run) for run in best.values()}
+    kept_runs = [run for run in runs if id(run) in winners]
+    dropped = [
+        SkippedRun(run.path, f"duplicate of {best[_identity(run)].path} (same table, row, task and seed)")
+        for run in runs if id(run) not in winners
+    ]
+    return kept_runs, dropped

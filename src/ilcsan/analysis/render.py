@@ -1,0 +1,211 @@
+"""A report's tables as text: Markdown, LaTeX (booktabs) and CSV.
+
+Every cell shows our value and, where the paper has one for that (table, row, task), the published
+value beside it: ``3583 ± 86 (n=3) · paper 3583 ± 86``; a cell without runs shows ``—``; the best mean
+of each column and the best APR are in bold.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+
+from .collect import SkippedRun
+from .tables import Cell, RowResult, TableResult
+
+
+def _decimals(value: float) -> int:
+    magnitude = abs(value)
+    return 0 if magnitude >= 100 else 1 if magnitude >= 10 else 2
+
+
+def format_stat(mean: float, std: float) -> str:
+    """``3583 ± 86``: integers as in the paper for |mean| ≥ 100, more decimals for small returns."""
+    places = _decimals(mean)
+    return f"{mean:.{places}f} ± {std:.{places}f}"
+
+
+def _our_stat(cell: Cell) -> str:
+    if cell.mean is None or cell.std is None:
+        return ""
+    return format_stat(cell.mean, cell.std)
+
+
+def _seed_count(cell: Cell) -> str:
+    return f"n={cell.n}, {cell.running} running" if cell.running else f"n={cell.n}"
+
+
+def _paper_stat(cell: Cell) -> str:
+    return format_stat(cell.paper.mean, cell.paper.std) if cell.paper else ""
+
+
+def _apr_parts(row: RowResult, n_tasks: int) -> tuple[str, str]:
+    """(``98.61%``, `` (3/4 tasks)`` when the APR averages fewer tasks than the table has)."""
+    if row.apr is None:
+        return "", ""
+    partial = f" ({row.apr_tasks}/{n_tasks} tasks)" if row.apr_tasks < n_tasks else ""
+    return f"{row.apr:.2f}%", partial
+
+
+def _md_escape(text: str) -> str:
+    for char in ("\\", "|", "*", "_"):
+        text = text.replace(char, "\\" + char)
+    return text
+
+
+def _md_cell(cell: Cell) -> str:
+    ours = _our_stat(cell)
+    text = "—" if not ours else (f"**{ours}**" if cell.best else ours) + f" ({_seed_count(cell)})"
+    return text + (f" · paper {_paper_stat(cell)}" if cell.paper else "")
+
+
+def _md_apr(row: RowResult, n_tasks: int) -> str:
+    ours, partial = _apr_parts(row, n_tasks)
+    text = "—" if not ours else (f"**{ours}**" if row.best_apr else ours) + partial
+    return text + (f" · paper {row.paper_apr:.2f}%" if row.paper_apr is not None else "")
+
+
+def render_markdown(results: TableResult | Sequence[TableResult], skipped: Sequence[SkippedRun] = (),
+                    title: str = "ILC-SAN reproduction report") -> str:
+    """The tables as Markdown, with the statistics explained, missing cells and skipped runs listed."""
+    results = [results] if isinstance(results, TableResult) else list(results)
+    lines = [f"# {title}", ""]
+    if not results:
+        lines += ["No runs found.", ""]
+    for result in results:
+        lines += _md_table(result)
+    lines += [
+        "Cell: max average reward, i.e. each seed run's best evaluation (mean return over its evaluation "
+        "episodes), as mean ± std over seeds (numpy std, ddof=0), n = number of seeds; bold = best of "
+        "the column; `—` = no runs (missing). APR = mean over tasks of (cell / DAN cell), only over tasks "
+        "where both exist. \"paper\" = the published value for the same table, row and task.",
+        "",
+    ]
+    if skipped:
+        lines += ["## Skipped runs", ""]
+        lines += [f"- `{run.path}`: {run.reason}" for run in skipped]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _md_table(result: TableResult) -> list[str]:
+    heading = f"## Table `{result.name}`: {result.caption}" if result.name else f"## {result.caption}"
+    header = ["Row", *result.tasks, "APR"]
+    lines = [heading, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in result.rows:
+        label = _md_escape(row.label) + ("" if row.runnable else " (paper only)")
+        cells = [_md_cell(cell) for cell in row.cells]
+        lines.append("| " + " | ".join([label, *cells, _md_apr(row, len(result.tasks))]) + " |")
+    lines += ["", f"APR reference (DAN): {result.reference}."]
+    missing = result.missing
+    if missing:
+        total = sum(len(row.cells) for row in result.rows if row.runnable)
+        lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
+    lines.append("")
+    return lines
+
+
+def _missing_text(result: TableResult) -> str:
+    """Missing cells grouped by row: ``PopSAN: all tasks; I_self: Walker2d``."""
+    parts = []
+    for row in result.rows:
+        tasks = [cell.task for cell in row.cells if not cell.n]
+        if row.runnable and tasks:
+            listed = "all tasks" if len(tasks) == len(row.cells) else ", ".join(tasks)
+            parts.append(f"{_md_escape(row.label)}: {listed}")
+    return "; ".join(parts)
+
+
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+    "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+    "α": r"$\alpha$", "±": r"$\pm$", "—": "--", "·": r"$\cdot$",
+}
+
+
+def latex_escape(text: str) -> str:
+    """Escape LaTeX's special characters (and map α, ±, —, · to math or ASCII)."""
+    return "".join(_LATEX_SPECIAL.get(char, char) for char in text)
+
+
+def _tex_cell(cell: Cell) -> str:
+    ours = _our_stat(cell)
+    value = "--" if not ours else latex_escape(ours)
+    value = rf"\textbf{{{value}}}" if cell.best else value
+    notes = [_seed_count(cell)] if ours else []
+    if cell.paper:
+        notes.append("paper " + latex_escape(_paper_stat(cell)))
+    return value + (rf" {{\scriptsize ({'; '.join(notes)})}}" if notes else "")
+
+
+def _tex_apr(row: RowResult, n_tasks: int) -> str:
+    ours, partial = _apr_parts(row, n_tasks)
+    value = "--" if not ours else latex_escape(ours)
+    value = (rf"\textbf{{{value}}}" if row.best_apr else value) + partial
+    if row.paper_apr is not None:
+        value += rf" {{\scriptsize (paper {row.paper_apr:.2f}\%)}}"
+    return value
+
+
+def render_latex(results: TableResult | Sequence[TableResult], skipped: Sequence[SkippedRun] = ()) -> str:
+    """The tables as LaTeX ``table*`` environments with booktabs rules (needs ``\\usepackage{booktabs}``)."""
+    results = [results] if isinstance(results, TableResult) else list(results)
+    lines = ["% ILC-SAN reproduction report; requires \\usepackage{booktabs}",
+             "% Cells: mean $\\pm$ std over seeds (ddof=0) of each run's max average reward; -- = no runs."]
+    for result in results:
+        label = f"tab:ours-{result.name}" if result.name else "tab:ours"
+        lines += [
+            r"\begin{table*}[t]",
+            rf"\caption{{{latex_escape(result.caption)} (this reproduction)}}",
+            rf"\label{{{latex_escape(label)}}}",
+            r"\centering",
+            r"\resizebox{\textwidth}{!}{",
+            rf"\begin{{tabular}}{{l{'c' * (len(result.tasks) + 1)}}}",
+            r"\toprule",
+            " & ".join(["Row", *map(latex_escape, result.tasks), "APR"]) + r" \\",
+            r"\midrule",
+        ]
+        for row in result.rows:
+            cells = [_tex_cell(cell) for cell in row.cells]
+            apr = _tex_apr(row, len(result.tasks))
+            lines.append(" & ".join([latex_escape(row.label), *cells, apr]) + r" \\")
+        lines += [r"\bottomrule", r"\end{tabular}}", r"\end{table*}", ""]
+    lines += [f"% skipped {run.path}: {run.reason}".replace("\n", " ") for run in skipped]
+    return "\n".join(lines) + "\n"
+
+
+CSV_COLUMNS: tuple[str, ...] = (
+    "table", "row", "label", "task", "kind", "status", "n", "running", "mean", "std", "best",
+    "paper_mean", "paper_std",
+)
+"""Long format: one line per (row, task) cell (``kind`` = reward) and one per row for its APR
+(``kind`` = apr, ``task`` = APR, ``n`` = number of tasks averaged, ``mean`` = APR in percent)."""
+
+
+def render_csv(results: TableResult | Sequence[TableResult]) -> str:
+    """The tables in long format (:data:`CSV_COLUMNS`); ``status`` is ok, running or missing."""
+    results = [results] if isinstance(results, TableResult) else list(results)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for result in results:
+        for row in result.rows:
+            for cell in row.cells:
+                status = "missing" if not cell.n else "running" if cell.running else "ok"
+                writer.writerow([
+                    result.name or "", row.key, row.label, cell.task, "reward", status, cell.n, cell.running,
+                    _csv_number(cell.mean), _csv_number(cell.std), int(cell.best),
+                    _csv_number(cell.paper.mean if cell.paper else None),
+                    _csv_number(cell.paper.std if cell.paper else None),
+                ])
+            status = "ok" if row.apr is not None else "missing"
+            writer.writerow([
+                result.name or "", row.key, row.label, "APR", "apr", status, row.apr_tasks, "",
+                _csv_number(row.apr), "", int(row.best_apr), _csv_number(row.paper_apr), "",
+            ])
+    return buffer.getvalue()
+
+
+def _csv_number(value: float | None) -> str:
+    return "" if value is None else repr(float(value))

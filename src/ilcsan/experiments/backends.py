@@ -1,0 +1,249 @@
+"""Where jobs run: a pool of local worker processes, or a Ray cluster.
+
+``local`` (default)  a pool of ``--workers`` processes (default: the number of cores), started with
+                     ``spawn``, each training one job at a time with **one** torch thread (two
+                     processes fighting over the cores are 10-50x slower). A worker process that
+                     dies (e.g. killed for memory) is replaced and its job resumed from its checkpoint,
+                     up to :data:`~ilcsan.experiments.coordinator.CRASH_RETRIES` times.
+``ray``              one Ray task per job with ``num_cpus=1``; Ray retries a task whose worker or node
+                     dies (``max_retries``), and the retry resumes from the checkpoint. Without
+                     ``--address`` a private single-machine Ray is started, listening on the loopback
+                     interface only, dashboard off; ``--address HOST:PORT`` (or ``auto``) joins an
+                     existing cluster. On a cluster of several machines, ``OUT`` must be on storage
+                     shared by every node under the same path (NFS, a cluster file system) and
+                     ``ilcsan`` installed on every node. Install Ray with ``pip install "ilcsan[ray]"``.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import logging
+import multiprocessing
+import os
+import signal
+from collections.abc import Sequence
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Protocol
+
+from ..errors import UserError
+from .jobs import Job, JobOutcome, run_job
+
+RAY_MAX_RETRIES = 3
+RAY_INSTALL_HINT = 'pip install "ilcsan[ray]"'
+
+
+def _ignore_ctrl_c_between_jobs() -> None:
+    """Local workers ignore Ctrl-C between jobs; the coordinator interrupts running jobs itself."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_job_stopped_by_ctrl_c(job: Job) -> JobOutcome:
+    """:func:`run_job` with Ctrl-C (SIGINT) stopping the training, as in a terminal."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return run_job(job)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+# ------------------------------------------------------------------------------------------ backends
+class Backend(Protocol):
+    """Where jobs run. ``slots`` jobs run at once; handles are hashable."""
+
+    slots: int
+
+    def describe(self) -> str: ...
+
+    def submit(self, job: Job) -> Any: ...
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[Any]: ...
+
+    def outcome(self, handle: Any) -> JobOutcome: ...
+
+    def interrupt(self, handles: Sequence[Any]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class LocalBackend:
+    """A pool of spawned worker processes on this machine, one torch thread each."""
+
+    def __init__(self, workers: int | None = None):
+        self.slots = workers or os.cpu_count() or 1
+        self.executor: concurrent.futures.ProcessPoolExecutor | None = None
+        self.broken = False
+
+    def describe(self) -> str:
+        return f"local backend: {self.slots} worker process(es), one torch thread each"
+
+    def _pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        if self.executor is None or self.broken:
+            if self.executor is not None:
+                self.executor.shutdown(wait=True, cancel_futures=True)
+            self.executor = concurrent.futures.ProcessPoolExecutor(
+                self.slots, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_ctrl_c_between_jobs)
+            self.broken = False
+        return self.executor
+
+    def submit(self, job: Job) -> concurrent.futures.Future:
+        return self._pool().submit(_run_job_stopped_by_ctrl_c, job)
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[Any]:
+        done, _ = concurrent.futures.wait(handles, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED)
+        return list(done)
+
+    def outcome(self, handle: concurrent.futures.Future) -> JobOutcome:
+        try:
+            return handle.result()
+        except BrokenProcessPool:
+            self.broken = True
+            return JobOutcome(error="the worker process died (killed, or out of memory)", crashed=True)
+        except KeyboardInterrupt:
+            return JobOutcome(error="interrupted")
+
+    def interrupt(self, handles: Sequence[Any]) -> None:
+        """Stop the running jobs as Ctrl-C would (each keeps its last checkpoint), then close the pool."""
+        if self.executor is None:
+            return
+        processes = getattr(self.executor, "_processes", None) or {}  # no public way to reach the workers
+        for process in list(processes.values()):
+            with contextlib.suppress(OSError, ValueError):
+                if process.pid is not None and process.is_alive():
+                    os.kill(process.pid, signal.SIGINT)
+        self.close()
+
+    def close(self) -> None:
+        if self.executor is not None:
+            self.executor.shutdown(wait=True, cancel_futures=True)
+            self.executor = None
+
+
+def import_ray():
+    """Ray, or a UserError saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise UserError(f"--backend ray needs Ray, which is not installed; install it with {RAY_INSTALL_HINT}") \
+            from None
+    return ray
+
+
+class RayBackend:
+    """One Ray task per job (``num_cpus=1``), retried by Ray when its worker or node dies."""
+
+    def __init__(self, workers: int | None = None, address: str | None = None, dashboard: bool = False):
+        ray = self.ray = import_ray()
+        self.started_here = address is None
+        if self.started_here:
+            start_local_ray(workers or os.cpu_count() or 1, dashboard)
+        else:
+            try:
+                ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+            except (ConnectionError, ValueError, RuntimeError) as error:
+                raise UserError(f"cannot join the Ray cluster at {address!r}: {error}") from None
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        self.slots = workers or max(1, cpus)
+        self.where = "a local Ray (loopback only)" if self.started_here else f"the Ray cluster at {address}"
+        self.cpus = cpus
+        self.task = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(run_job)
+
+    def describe(self) -> str:
+        return (f"ray backend: {self.where}, {self.cpus} CPU(s), up to {self.slots} job(s) at once, "
+                f"one CPU and one torch thread each, {RAY_MAX_RETRIES} retries")
+
+    def submit(self, job: Job) -> Any:
+        return self.task.remote(job)
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[Any]:
+        ready, _ = self.ray.wait(list(handles), num_returns=1, timeout=timeout)
+        if ready:
+            ready, _ = self.ray.wait(list(handles), num_returns=len(handles), timeout=0)
+        return ready
+
+    def outcome(self, handle: Any) -> JobOutcome:
+        try:
+            return self.ray.get(handle)
+        except self.ray.exceptions.RayError as error:
+            first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            return JobOutcome(error=f"Ray gave up on the job after {RAY_MAX_RETRIES} retries: {first[:300]}")
+
+    def interrupt(self, handles: Sequence[Any]) -> None:
+        """Cancel the running tasks (a KeyboardInterrupt in each: they keep their last checkpoint)."""
+        for handle in handles:
+            with contextlib.suppress(Exception):
+                self.ray.cancel(handle)
+        if handles and not self.started_here:
+            with contextlib.suppress(Exception):
+                self.ray.wait(list(handles), num_returns=len(handles), timeout=30)
+        self.close()
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.ray.shutdown()
+
+
+def start_local_ray(num_cpus: int, dashboard: bool = False) -> None:
+    """Start a private single-machine Ray that listens on 127.0.0.1 only (never joins another cluster).
+
+    In Ray 2.60 on Linux ``_node_ip_address="127.0.0.1"`` alone is turned into the machine's outward
+    address and the servers listen there; Ray keeps a node on the loopback address only when its cluster
+    mode is off (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, the default on macOS and Windows), which is
+    set here for the processes Ray starts and restored afterwards. ``address="local"`` makes sure a new
+    instance is started, whatever ``RAY_ADDRESS`` says.
+    """
+    ray = import_ray()
+    variable = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+    saved_env = os.environ.get(variable)
+    constants = _ray_constants()
+    saved_flag = getattr(constants, "ENABLE_RAY_CLUSTER", None)
+    os.environ[variable] = "0"
+    if saved_flag is not None:
+        constants.ENABLE_RAY_CLUSTER = False  # read at import time; Ray may already be imported
+    try:
+        ray.init(address="local", num_cpus=num_cpus, include_dashboard=dashboard, dashboard_host="127.0.0.1",
+                 _node_ip_address="127.0.0.1", log_to_driver=False, logging_level=logging.WARNING)
+    finally:
+        if saved_env is None:
+            os.environ.pop(variable, None)
+        else:
+            os.environ[variable] = saved_env
+        if saved_flag is not None:
+            constants.ENABLE_RAY_CLUSTER = saved_flag
+
+
+def _ray_constants():
+    try:
+        from ray._private import ray_constants
+    except ImportError:  # a future Ray without this module: the node address is checked by the caller
+        return None
+    return ray_constants
+
+
+def ray_node_address() -> str:
+    """The address the connected Ray node listens on (127.0.0.1 for :func:`start_local_ray`)."""
+    import ray
+
+    return str(ray.util.get_node_ip_address())
+
+
+BACKENDS: tuple[str, ...] = ("local", "ray")
+
+
+def check_backend_options(name: str, address: str | None = None) -> None:
+    """One line for a backend that cannot start: an unknown name, ``--address`` without Ray, Ray missing."""
+    if name not in BACKENDS:
+        raise UserError(f"--backend {name!r} is not one of: {', '.join(BACKENDS)}")
+    if name == "ray":
+        import_ray()
+    elif address:
+        raise UserError("--address is for --backend ray; the local backend runs on this machine")
+
+
+def make_backend(name: str, workers: int | None = None, address: str | None = None,
+                 dashboard: bool = False) -> Backend:
+    """The backend of ``--backend NAME`` (:data:`BACKENDS`), or a UserError (:func:`check_backend_options`)."""
+    check_backend_options(name, address)
+    if name == "local":
+        return LocalBackend(workers)
+    return RayBackend(workers, address, dashboard)
