@@ -215,7 +215,7 @@ def bad_inputs(base: Path, scale: int) -> dict:
 RAY_PROBE = r"""
 import json, os, socket, struct
 from pathlib import Path
-from ilcsan.experiments.coordinator import start_local_ray, ray_node_address
+from ilcsan.experiments.backends import start_local_ray, ray_node_address
 import ray
 
 def tree(root):

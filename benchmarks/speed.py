@@ -93,8 +93,8 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, m
     """
     from torch.utils._python_dispatch import TorchDispatchMode
 
+    from ilcsan.rl.settings import set_matmul_precision
     from ilcsan.rl.td3 import TD3Agent
-    from ilcsan.rl.training import set_matmul_precision
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}

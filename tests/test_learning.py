@@ -6,7 +6,8 @@ import pytest
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.evaluation import random_policy_return
-from ilcsan.rl.training import set_matmul_precision, train
+from ilcsan.rl.settings import set_matmul_precision
+from ilcsan.rl.training import train
 
 THRESHOLD = -600.0  # Pendulum-v1: random actions score about -1200, a swinging-up policy above -400
 

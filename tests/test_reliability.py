@@ -349,11 +349,12 @@ def test_nan_loss_is_caught_at_the_update_chunk_it_appears(tmp_path, capsys, mon
 
 @pytest.fixture
 def no_training(monkeypatch):
-    """Fail the test if any environment is made: the folder must be checked first."""
+    """Fail the test if an agent is built: the folder must be checked before any training starts (the task's
+    environments are built first, so that nothing is written for a task that cannot be built)."""
     def refuse(*_args, **_kwargs):
-        raise AssertionError("an environment was made before the output folder was checked")
+        raise AssertionError("an agent was built before the output folder was checked")
 
-    monkeypatch.setattr("ilcsan.rl.training.make_env", refuse)
+    monkeypatch.setattr("ilcsan.rl.training.TD3Agent", refuse)
 
 
 def test_output_below_a_file_is_reported_before_training(tmp_path, capsys, no_training):
@@ -391,9 +392,9 @@ def test_full_disk_is_reported_before_training(tmp_path, capsys, monkeypatch, no
 
 def test_disk_full_at_a_checkpoint_keeps_the_last_one_and_resumes_exactly(trained_run, tmp_path, capsys,
                                                                          monkeypatch):
-    import ilcsan.rl.training as training
+    import ilcsan.runs.directory as directory
 
-    original, calls = training.atomic_torch_save, {"n": 0}
+    original, calls = directory.atomic_torch_save, {"n": 0}
 
     def fills_up(path, obj):
         calls["n"] += 1
@@ -403,12 +404,12 @@ def test_disk_full_at_a_checkpoint_keeps_the_last_one_and_resumes_exactly(traine
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         original(path, obj)
 
-    monkeypatch.setattr(training, "atomic_torch_save", fills_up)
+    monkeypatch.setattr(directory, "atomic_torch_save", fills_up)
     out = tmp_path / "run"
     code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out)
     assert_user_error(code, err, "step 300", "No space left on device", "last checkpoint is kept", "--resume")
     assert safe_torch_load(out / "checkpoint.pt")["step"] == 150
-    monkeypatch.setattr(training, "atomic_torch_save", original)
+    monkeypatch.setattr(directory, "atomic_torch_save", original)
     code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out, "--resume")
     assert code == 0, err
     assert eval_curve(out) == eval_curve(trained_run), "the resumed run equals the uninterrupted one"
@@ -492,7 +493,7 @@ def test_stale_temporary_files_are_removed_on_resume(run_copy, capsys):
 
 def test_a_local_ray_binds_to_loopback_with_its_dashboard_off(monkeypatch):
     ray = pytest.importorskip("ray")
-    from ilcsan.experiments import coordinator as experiments
+    from ilcsan.experiments import backends as experiments
 
     calls: list[dict] = []
     monkeypatch.setattr(ray, "init", lambda *args, **kwargs: calls.append(dict(kwargs, args=args)))

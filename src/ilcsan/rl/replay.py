@@ -8,14 +8,10 @@ run replays the segments in order, so a buffer that wrapped around is rebuilt ex
 
 from __future__ import annotations
 
-import contextlib
-import os
-from pathlib import Path
-
 import numpy as np
 
 from ..errors import UserError
-from ..files import atomic_savez
+from ..runs.directory import RunDirectory
 
 FIELDS = ("obs", "action", "reward", "next_obs", "terminal")
 
@@ -52,44 +48,25 @@ class ReplayBuffer:
         return {name: array[seeds, indices] for name, array in self.data.items()}
 
     # ---------------------------------------------------------------------------- checkpoints
-    def write_segment(self, directory: Path, seed_index: int, start: int) -> str | None:
-        """Write rows inserted at [start, total) of one seed as ``replay/<start>-<end>.npz``."""
+    def write_segment(self, directory: RunDirectory, seed_index: int, start: int) -> str | None:
+        """Write rows inserted at [start, total) of one seed as ``replay/<start>-<end>.npz``; returns its name."""
         end = self.total
         if end <= start:
             return None
         start = max(start, end - self.capacity)
         rows = np.arange(start, end) % self.capacity
         name = f"{start:010d}-{end:010d}.npz"
-        folder = Path(directory) / "replay"
-        folder.mkdir(parents=True, exist_ok=True)
-        atomic_savez(folder / name, **{f: self.data[f][seed_index, rows] for f in FIELDS})
+        directory.write_replay_segment(name, {f: self.data[f][seed_index, rows] for f in FIELDS})
         return name
 
-    def load_segments(self, directory: Path, seed_index: int, names: list[str], total: int) -> None:
+    def load_segments(self, directory: RunDirectory, seed_index: int, names: list[str], total: int) -> None:
         """Rebuild one seed's rows from its segments (in order) up to insert count ``total``."""
-        folder = Path(directory) / "replay"
         for name in names:
             start, end = (int(part) for part in name.removesuffix(".npz").split("-"))
-            try:
-                with np.load(folder / name, allow_pickle=False) as segment:
-                    arrays = {f: segment[f] for f in FIELDS}
-            except (OSError, KeyError, ValueError) as error:
-                raise UserError(f"replay segment {folder / name} is missing or corrupt ({error}); "
-                                "the run cannot resume exactly — start it again without --resume") from None
+            arrays = directory.read_replay_segment(name, FIELDS)
             if len(arrays["obs"]) != end - start:
-                raise UserError(f"replay segment {folder / name} has the wrong length; it is corrupt")
+                raise UserError(f"replay segment {name} in {directory.path} has the wrong length; it is corrupt")
             rows = np.arange(start, end) % self.capacity
             for field in FIELDS:
                 self.data[field][seed_index, rows] = arrays[field]
         self.total = total
-
-    @staticmethod
-    def prune_segments(directory: Path, keep: list[str]) -> None:
-        """Delete segment files no checkpoint refers to (written by an interrupted checkpoint)."""
-        folder = Path(directory) / "replay"
-        if not folder.is_dir():
-            return
-        for path in folder.iterdir():
-            if path.name not in keep and path.suffix == ".npz":
-                with contextlib.suppress(FileNotFoundError):
-                    os.remove(path)

@@ -76,15 +76,16 @@ def polyak_update(target: nn.Module, source: nn.Module, tau: float) -> None:
 
 
 class TD3Agent:
-    """K TD3 agents in stacked weights on one device."""
+    """K TD3 agents in stacked weights on one device; ``engine`` is the actor's forward pass ('fast' or
+    'reference'), ``compile`` compiles a spiking actor and the target values."""
 
     def __init__(self, actor_config: ActorConfig, td3: TD3Config, state_dim: int, action_dim: int,
                  action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
-                 device: str | torch.device = "cpu", compile: bool = False):
+                 device: str | torch.device = "cpu", compile: bool = False, engine: str = "fast"):
         self.config, self.td3, self.seeds = actor_config, td3, list(seeds)
         self.device = torch.device(device)
-        self.actor = build_actor(actor_config, state_dim, action_dim, action_scale, action_offset,
-                                 self.seeds).to(self.device)
+        self.actor = build_actor(actor_config, state_dim, action_dim, action_scale, action_offset, self.seeds,
+                                 engine=engine).to(self.device)
         self.actor_target = copy.deepcopy(self.actor)
         self.critic = TwinCritic(state_dim, action_dim, td3.critic_hidden, self.seeds).to(self.device)
         self.critic_target = copy.deepcopy(self.critic)

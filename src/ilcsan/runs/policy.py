@@ -16,25 +16,27 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..snn.actor import build_actor
 from ..config import ActorConfig
 from ..errors import UserError
 from ..files import safe_torch_load
-from ..rl.training import CHECKPOINT_FORMAT, POLICY_FORMAT
+from ..snn.actor import build_actor
+from .checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT
+from .directory import CHECKPOINT, POLICY, RunDirectory
 
 
 def resolve_policy_file(path: str | Path) -> Path:
     """A run directory → its policy.pt; a file → itself. Clear errors for everything else."""
     path = Path(path)
     if path.is_dir():
-        if (path / "policy.pt").is_file():
-            return path / "policy.pt"
-        seeds = sorted(p.name for p in path.glob("seed*") if (p / "policy.pt").is_file())
+        run = RunDirectory(path)
+        if run.file(POLICY).is_file():
+            return run.file(POLICY)
+        seeds = sorted(p.name for p in path.glob("seed*") if RunDirectory(p).file(POLICY).is_file())
         if seeds:
             raise UserError(f"{path} holds several seeds ({', '.join(seeds)}); pass one of them, "
                             f"e.g. {path / seeds[0]}")
-        if (path / "checkpoint.pt").is_file():
-            return path / "checkpoint.pt"
+        if run.file(CHECKPOINT).is_file():
+            return run.file(CHECKPOINT)
         raise UserError(f"{path} has no policy.pt yet: the run has not finished its first evaluation")
     if not path.exists():
         raise UserError(f"{path} does not exist; pass a run directory, a policy.pt or a checkpoint.pt")
@@ -138,6 +140,31 @@ def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor
                   {key: data.get(key) for key in ("step", "seed", "eval_return_mean")})
 
 
+def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
+    """The policy fields of a training checkpoint: its actor with the normaliser frozen where it stands.
+
+    Checkpoints hold the action bounds; for older ones without them the task's environment is built once
+    to read them."""
+    from ..rl.normalizer import EPSILON
+
+    normalizer, config = data["normalizer"], data["config"]
+    count = float(normalizer["count"])
+    m2 = np.asarray(normalizer["m2"])
+    variance = m2 / max(count, 1.0) if count > 0 else np.ones_like(m2)
+    if "action_scale" in data and "action_offset" in data:
+        scale, offset = data["action_scale"], data["action_offset"]
+    else:
+        from ..rl.tasks import action_bounds, make_env
+
+        env = make_env(config["task"])
+        scale, offset = action_bounds(env)
+        env.close()
+    return {"actor_config": config["actor"], "state_dim": data["state_dim"], "action_dim": data["action_dim"],
+            "action_scale": scale, "action_offset": offset, "obs_mean": np.asarray(normalizer["mean"]),
+            "obs_std": np.sqrt(variance + EPSILON), "obs_clip": normalizer["clip"], "task": config["task"],
+            "step": data["step"], "seed": config.get("seed")}
+
+
 def load(path: str | Path) -> Policy:
     """Load a trained actor from a run directory, a policy.pt or a checkpoint.pt."""
     file = resolve_policy_file(path)
@@ -146,23 +173,7 @@ def load(path: str | Path) -> Policy:
         if data["format"] == POLICY_FORMAT:
             return _params_to_policy(data, data["actor"], file)
         if data["format"] == CHECKPOINT_FORMAT:
-            normalizer = data["normalizer"]
-            count = float(normalizer["count"])
-            variance = np.asarray(normalizer["m2"]) / max(count, 1.0) if count > 0 else np.ones_like(
-                np.asarray(normalizer["m2"]))
-            from ..rl.normalizer import EPSILON
-            from ..rl.tasks import action_bounds, make_env
-
-            config = data["config"]
-            env = make_env(config["task"])
-            scale, offset = action_bounds(env)
-            env.close()
-            policy_data = {"actor_config": config["actor"], "state_dim": data["state_dim"],
-                           "action_dim": data["action_dim"], "action_scale": scale, "action_offset": offset,
-                           "obs_mean": np.asarray(normalizer["mean"]), "obs_std": np.sqrt(variance + EPSILON),
-                           "obs_clip": normalizer["clip"], "task": config["task"], "step": data["step"],
-                           "seed": config.get("seed")}
-            return _params_to_policy(policy_data, data["actor"], file)
+            return _params_to_policy(_checkpoint_as_policy(data), data["actor"], file)
     except UserError:
         raise
     except (KeyError, TypeError, AttributeError, ValueError, IndexError, RuntimeError) as error:

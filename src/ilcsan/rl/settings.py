@@ -1,0 +1,76 @@
+"""What a run's settings mean for this process: one clear line for every impossible setting, the matmul
+precision, and whether to compile."""
+
+from __future__ import annotations
+
+import os
+
+import torch
+
+from ..config import ENGINES, MATMUL_PRECISIONS, RunConfig
+from ..errors import UserError
+
+COMPILE_AUTO_STEPS = 50_000
+"""``--compile auto`` compiles runs of at least this many steps (long enough to repay ~10-30 s of compiling)."""
+
+
+def validate_run(config: RunConfig) -> None:
+    """One clear sentence for every impossible run setting."""
+    if config.steps < 1:
+        raise UserError(f"--steps must be at least 1, got {config.steps}")
+    if config.eval_every < 1 or config.eval_episodes < 1:
+        raise UserError("--eval-every and --eval-episodes must be at least 1")
+    if not config.seeds:
+        raise UserError("give at least one seed")
+    if len(set(config.seeds)) != len(config.seeds):
+        raise UserError(f"seeds must be distinct, got {list(config.seeds)}")
+    if config.engine not in ENGINES:
+        raise UserError(f"--engine {config.engine!r} is not one of: {', '.join(ENGINES)}")
+    if config.td3.batch_size < 1 or config.td3.update_every < 1 or config.td3.policy_delay < 1:
+        raise UserError("--batch-size, --update-every and --policy-delay must be at least 1")
+    _validate_device(config.device)
+    if config.compile not in ("auto", "on", "off"):
+        raise UserError(f"--compile {config.compile!r} is not one of: auto, on, off")
+    if config.matmul not in MATMUL_PRECISIONS:
+        raise UserError(f"--matmul {config.matmul!r} is not one of: {', '.join(MATMUL_PRECISIONS)}")
+    if config.threads is not None and config.threads < 1:
+        raise UserError(f"--threads must be at least 1, got {config.threads}")
+    most_threads = 4 * (os.cpu_count() or 1)
+    if config.threads is not None and config.threads > most_threads:
+        raise UserError(f"--threads {config.threads} is more than 4 per core ({most_threads} here); use at most "
+                        f"{os.cpu_count() or 1}")
+
+
+def _validate_device(name: str) -> None:
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError, ValueError):
+        raise UserError(f"--device {name!r} is not a device; use cpu, cuda or cuda:N") from None
+    if device.type not in ("cpu", "cuda"):
+        raise UserError(f"--device {name!r} is not supported; use cpu, cuda or cuda:N")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise UserError("--device cuda was asked for but no CUDA device is available; use --device cpu")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise UserError(f"--device {name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+
+
+def set_matmul_precision(name: str) -> None:
+    """Apply ``--matmul`` to this process (torch's setting is global)."""
+    torch.set_float32_matmul_precision(MATMUL_PRECISIONS[name])
+
+
+def apply_to_process(config: RunConfig) -> None:
+    """``--threads`` and ``--matmul`` for this process."""
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    set_matmul_precision(config.matmul)
+
+
+def use_compile(config: RunConfig) -> bool:
+    """Compile when asked, or (auto) when the run is long enough to repay ~10-30 s of compiling.
+
+    Only spiking-actor agents are compiled, and only the actor and the no-grad target values (TD3Agent decides:
+    DAN and the trained critic run faster eager)."""
+    if config.compile == "auto":
+        return config.steps >= COMPILE_AUTO_STEPS and config.engine == "fast"
+    return config.compile == "on"
