@@ -31,16 +31,21 @@ os.umask(_UMASK)
 
 
 @contextlib.contextmanager
-def _temporary_beside(path: Path):
+def _replacing(path: Path):
+    """Yield a temporary file beside ``path`` (a new file's permissions); when the block succeeds, flush it to
+    disk and rename it over ``path``; when it fails, remove it. The one atomic write of the package."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.fchmod(handle, 0o666 & ~_UMASK)
-        with os.fdopen(handle, "wb") as stream:
-            yield stream
-            stream.flush()
-            os.fsync(stream.fileno())
+        os.close(handle)
+        yield temporary
+        descriptor = os.open(temporary, os.O_RDONLY)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
         os.replace(temporary, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -53,23 +58,13 @@ FAULT_DELAY_VARIABLE = "ILCSAN_FAULT_DELAY_WRITE"
 
 def atomic_write_file(path: Path, write) -> None:
     """Atomically create ``path`` with ``write(temporary_path)``, for libraries that write files themselves."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.fchmod(handle, 0o666 & ~_UMASK)
-    os.close(handle)
-    try:
+    with _replacing(path) as temporary:
         write(temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(temporary)
-        raise
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     delay = float(os.environ.get(FAULT_DELAY_VARIABLE) or 0)
-    with _temporary_beside(path) as stream:
+    with _replacing(path) as temporary, open(temporary, "wb") as stream:
         if delay > 0:  # fault injection: a half-written temporary file exists while we sleep
             stream.write(data[: len(data) // 2])
             stream.flush()
