@@ -11,12 +11,18 @@ the actor anywhere, including in the deploy runtime. Presets set every switch at
              hidden (400, 300), α_C = α_V = 0.5, output populations read by a non-leaky integrator
              (D_last, α_V^LI = 1) and tanh.
 ``dan``      TD3's deep actor network: (N, 256, ReLU, 256, ReLU, M, tanh), learning rate 1e-3.
+
+Every setting is a dataclass field whose metadata describes it once: its help, its choice list, its command-line
+flag where that differs from the field name. :mod:`ilcsan.cli.options` generates the command line from this
+metadata and :func:`check_settings` validates against it, so a switch, its default and its help cannot drift
+apart.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -59,27 +65,106 @@ INTRA_MASKS: dict[str, IntraMask] = {
 INTRA_VARIANTS: tuple[str, ...] = tuple(INTRA_MASKS)
 
 
+# ------------------------------------------------------------------ settings described once
+class Switch(NamedTuple):
+    """A command-line switch that sets part of a field (``hidden`` is offered as a layer count and a width)."""
+
+    flag: str
+    help: str
+    default_of: Callable[[Any], Any]
+    """The switch's value implied by the field's value, e.g. ``len`` of the hidden widths."""
+
+
+def setting(default: Any, help: str, *, choices: tuple[str, ...] | Mapping[str, Any] | None = None,
+            flag: str | None = None, aliases: tuple[str, ...] = (), minimum: int | None = None,
+            bounds: str | None = None, switches: tuple[Switch, ...] = ()) -> Any:
+    """A dataclass field described once for the command line and for :func:`check_settings`.
+
+    ``flag`` is the CLI name when it is not the field name with dashes; ``minimum`` bounds whole numbers;
+    ``bounds`` is ``"decay"`` (a factor in [0, 1]) or ``"positive"`` for real numbers; ``switches`` replace
+    the field's own switch by switches that each set part of it.
+    """
+    metadata = {"help": help, "choices": choices, "flag": flag, "aliases": aliases, "minimum": minimum,
+                "bounds": bounds, "switches": switches}
+    return field(default=default, metadata=metadata)
+
+
+def flag_of(setting_field: dataclasses.Field) -> str:
+    """The command-line flag of a field: ``--`` and its metadata ``flag``, or its name with dashes."""
+    return "--" + (setting_field.metadata.get("flag") or setting_field.name.replace("_", "-"))
+
+
+def described_fields(config_class: type) -> list[dataclasses.Field]:
+    """The fields of a config class that carry a description (help) in their metadata."""
+    return [item for item in dataclasses.fields(config_class) if "help" in item.metadata]
+
+
+def check_settings(config: Any) -> None:
+    """Raise :class:`UserError` naming the flag for any field whose value its metadata does not allow."""
+    for item in described_fields(type(config)):
+        value, meta, name = getattr(config, item.name), item.metadata, flag_of(item)
+        if meta["choices"] is not None and value not in meta["choices"]:
+            raise UserError(f"{name} {value!r} is not one of: {', '.join(meta['choices'])}")
+        if meta["minimum"] is not None and value is not None and value < meta["minimum"]:
+            raise UserError(f"{name} must be at least {meta['minimum']}, got {value}")
+        if meta["bounds"] == "decay" and not (math.isfinite(value) and 0.0 <= value <= 1.0):
+            raise UserError(f"{name} is a decay factor in [0, 1], got {value}")
+        if meta["bounds"] == "positive" and not (math.isfinite(value) and value > 0):
+            raise UserError(f"{name} must be a positive number, got {value}")
+
+
+# ------------------------------------------------------------------------------------ the actor
+PRESETS: dict[str, dict[str, Any]] = {
+    "ilc-san": {},
+    "popsan": {"intra": "none", "decoder": "fr"},
+    "mdc-san": {"encoder": "pop", "neuron": "dynamic", "intra": "none", "decoder": "fr"},
+    "akl": {"encoder": "two-neuron", "hidden": (400, 300), "alpha_c": 0.5, "alpha_v": 0.5,
+            "intra": "none", "decoder": "last", "alpha_v_li": 1.0},
+    "dan": {"network": "deep", "learning_rate": 1e-3, "encoder": "layer", "intra": "none",
+            "decoder": "last"},
+}
+"""Each preset as its differences from :class:`ActorConfig`'s defaults (which are ILC-SAN's)."""
+
+PRESET_NAMES: tuple[str, ...] = tuple(PRESETS)
+
+PRESET_SUMMARIES = {
+    "ilc-san": "ILC-SAN (the paper): E_pop_det, CLIF, intra-layer connections, LI decoder D_last",
+    "popsan": "PopSAN (Tang et al. 2021): E_pop_det, CLIF, firing-rate decoder",
+    "mdc-san": "MDC-SAN (Zhang et al. 2022): E_pop analog input, dynamic neurons, firing-rate decoder",
+    "akl": "Akl et al. 2023 (variant): two-neuron analog input, CLIF 400-300, integrator readout",
+    "dan": "DAN: TD3's deep actor (N, 256, ReLU, 256, ReLU, M, tanh)",
+}
+
+MAX_HIDDEN_LAYERS = 4
+
+
 @dataclass(frozen=True)
 class ActorConfig:
-    """Every switch of an actor. Field docs double as the CLI's help text."""
+    """Every switch of an actor; the defaults are the paper's ILC-SAN. Field metadata is the CLI's help."""
 
-    preset: str = "ilc-san"
-    network: str = "spiking"  # spiking | deep (DAN)
-    encoder: str = "pop-det"  # pop-det | pop-prob | pop | layer | two-neuron
-    neuron: str = "clif"  # clif | dynamic (MDC-SAN)
-    hidden: tuple[int, ...] = (256, 256)  # hidden layer widths (1-4 layers)
-    intra: str = "intra"  # intra | self | lateral | bias | lateral+bias | self+bias | self+lateral | none
-    decoder: str = "last"  # last | max | mean | fr
-    alpha_v_li: float = 1.0  # voltage decay α_V^LI of the decoder's LI neuron
-    timesteps: int = 5  # simulation time T per action
-    population_in: int = 10  # encoder neurons per state dimension P_in
-    population_out: int = 10  # output neurons per action dimension P_out
-    alpha_c: float = 0.5  # CLIF current decay α_C
-    alpha_v: float = 0.75  # CLIF voltage decay α_V^CLIF
-    v_th: float = 0.5  # CLIF threshold V_th
-    surrogate_width: float = 0.5  # rectangular surrogate window w
-    enc_v_th: float = 0.999  # threshold of the encoder's soft-reset IF neurons
-    learning_rate: float = 1e-4  # actor learning rate (DAN 1e-3)
+    preset: str = setting("ilc-san", "the preset; any switch below overrides it (see `ilcsan actors`)",
+                          choices=PRESET_NAMES, flag="actor", aliases=("--preset",))
+    network: str = setting("spiking", "spiking actor, or TD3's deep actor network (DAN)", choices=NETWORKS)
+    encoder: str = setting("pop-det", "input coding; pop-det and pop-prob keep the actor fully spiking",
+                           choices=ENCODERS)
+    neuron: str = setting("clif", "backbone neuron: CLIF, or MDC-SAN's dynamic neuron", choices=NEURONS)
+    hidden: tuple[int, ...] = setting((256, 256), "hidden layer widths", switches=(
+        Switch("hidden-layers", f"number of hidden layers, 1-{MAX_HIDDEN_LAYERS}", len),
+        Switch("hidden-width", "neurons per hidden layer", lambda widths: widths[0])))
+    intra: str = setting("intra", "intra-layer connections kept (Eq. (10)): all, one part, or none",
+                         choices=INTRA_VARIANTS)
+    decoder: str = setting("last", "decoder statistic: the LI membrane voltage's last, max or mean, or the firing "
+                                   "rate (fr)", choices=DECODERS)
+    alpha_v_li: float = setting(1.0, "voltage decay α_V^LI of the decoder's LI neuron", bounds="decay")
+    timesteps: int = setting(5, "simulation time T per action", minimum=1)
+    population_in: int = setting(10, "encoder neurons per state dimension P_in", minimum=1)
+    population_out: int = setting(10, "output neurons per action dimension P_out", minimum=1)
+    alpha_c: float = setting(0.5, "CLIF current decay α_C", bounds="decay")
+    alpha_v: float = setting(0.75, "CLIF voltage decay α_V^CLIF", bounds="decay")
+    v_th: float = setting(0.5, "CLIF threshold V_th", bounds="positive")
+    surrogate_width: float = setting(0.5, "rectangular surrogate window w", bounds="positive")
+    enc_v_th: float = setting(0.999, "threshold of the encoder's soft-reset IF neurons", bounds="positive")
+    learning_rate: float = setting(1e-4, "actor learning rate; DAN's is 1e-3", flag="actor-lr", bounds="positive")
 
     @property
     def fully_spiking(self) -> bool:
@@ -116,55 +201,13 @@ class ActorConfig:
         return validate(cls(**values))
 
 
-PRESETS: dict[str, dict[str, Any]] = {
-    "ilc-san": {},
-    "popsan": {"intra": "none", "decoder": "fr"},
-    "mdc-san": {"encoder": "pop", "neuron": "dynamic", "intra": "none", "decoder": "fr"},
-    "akl": {"encoder": "two-neuron", "hidden": (400, 300), "alpha_c": 0.5, "alpha_v": 0.5,
-            "intra": "none", "decoder": "last", "alpha_v_li": 1.0},
-    "dan": {"network": "deep", "learning_rate": 1e-3, "encoder": "layer", "intra": "none",
-            "decoder": "last"},
-}
-
-PRESET_NAMES: tuple[str, ...] = tuple(PRESETS)
-
-PRESET_SUMMARIES = {
-    "ilc-san": "ILC-SAN (the paper): E_pop_det, CLIF, intra-layer connections, LI decoder D_last",
-    "popsan": "PopSAN (Tang et al. 2021): E_pop_det, CLIF, firing-rate decoder",
-    "mdc-san": "MDC-SAN (Zhang et al. 2022): E_pop analog input, dynamic neurons, firing-rate decoder",
-    "akl": "Akl et al. 2023 (variant): two-neuron analog input, CLIF 400-300, integrator readout",
-    "dan": "DAN: TD3's deep actor (N, 256, ReLU, 256, ReLU, M, tanh)",
-}
-
-
-def _choice(name: str, value: Any, choices: tuple[str, ...] | dict) -> None:
-    if value not in choices:
-        raise UserError(f"--{name.replace('_', '-')} {value!r} is not one of: {', '.join(choices)}")
-
-
 def validate(config: ActorConfig) -> ActorConfig:
     """Raise :class:`UserError` with one sentence for any impossible switch value."""
-    _choice("preset", config.preset, PRESETS)
-    _choice("network", config.network, NETWORKS)
-    _choice("encoder", config.encoder, ENCODERS)
-    _choice("neuron", config.neuron, NEURONS)
-    _choice("intra", config.intra, INTRA_VARIANTS)
-    _choice("decoder", config.decoder, DECODERS)
-    if not 1 <= len(config.hidden) <= 4:
-        raise UserError(f"the backbone needs 1 to 4 hidden layers, got {len(config.hidden)}")
+    check_settings(config)
+    if not 1 <= len(config.hidden) <= MAX_HIDDEN_LAYERS:
+        raise UserError(f"the backbone needs 1 to {MAX_HIDDEN_LAYERS} hidden layers, got {len(config.hidden)}")
     if any(width < 1 for width in config.hidden):
         raise UserError(f"hidden layer widths must be at least 1, got {list(config.hidden)}")
-    for name in ("timesteps", "population_in", "population_out"):
-        if getattr(config, name) < 1:
-            raise UserError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(config, name)}")
-    for name in ("alpha_c", "alpha_v", "alpha_v_li"):
-        value = getattr(config, name)
-        if not (math.isfinite(value) and 0.0 <= value <= 1.0):
-            raise UserError(f"--{name.replace('_', '-')} is a decay factor in [0, 1], got {value}")
-    for name in ("v_th", "surrogate_width", "enc_v_th", "learning_rate"):
-        value = getattr(config, name)
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
     return config
 
 
@@ -183,8 +226,8 @@ def actor_config(preset: str = "ilc-san", **overrides: Any) -> ActorConfig:
         base = overrides.get("hidden", values.get("hidden", ActorConfig.hidden))
         layers = len(base) if layers is None else int(layers)
         width = base[0] if width is None else int(width)
-        if layers < 1 or layers > 4:
-            raise UserError(f"--hidden-layers must be 1 to 4, got {layers}")
+        if layers < 1 or layers > MAX_HIDDEN_LAYERS:
+            raise UserError(f"--hidden-layers must be 1 to {MAX_HIDDEN_LAYERS}, got {layers}")
         overrides["hidden"] = (width,) * layers
     known = {f.name for f in dataclasses.fields(ActorConfig)}
     unknown = sorted(set(overrides) - known)
@@ -196,23 +239,25 @@ def actor_config(preset: str = "ilc-san", **overrides: Any) -> ActorConfig:
     return validate(ActorConfig(**values))
 
 
+# ------------------------------------------------------------------------------------ TD3 and the run
 @dataclass(frozen=True)
 class TD3Config:
     """TD3 hyper-parameters of the paper (Section IV-A) and the authors' code."""
 
     gamma: float = 0.99  # reward discount
     tau: float = 0.005  # soft target update factor
-    batch_size: int = 100
+    batch_size: int = setting(100, "minibatch size", minimum=1)
     replay_size: int = 1_000_000
     critic_lr: float = 1e-3
     critic_hidden: tuple[int, ...] = (256, 256)
     exploration_noise: float = 0.1  # stddev, relative to the action half-range
     target_noise: float = 0.2  # target policy smoothing stddev, relative to the action half-range
     noise_clip: float = 0.5
-    policy_delay: int = 2
-    start_steps: int = 10_000  # uniformly random actions before the actor acts
-    update_after: int = 1_000  # first update at this step
-    update_every: int = 50  # updates run in chunks of this many (one per environment step)
+    policy_delay: int = setting(2, "actor and target updates once every this many critic updates", minimum=1)
+    start_steps: int = setting(10_000, "uniformly random actions before the actor acts", minimum=0)
+    update_after: int = setting(1_000, "first TD3 update at this step", minimum=0)
+    update_every: int = setting(50, "TD3 updates run in chunks of this many, one per environment step, "
+                                    "as in the authors' code", minimum=1)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)
@@ -233,16 +278,22 @@ class RunConfig:
 
     task: str = "Hopper"
     seeds: tuple[int, ...] = (0,)
-    steps: int = 1_000_000  # environment steps per seed
-    eval_every: int = 10_000
-    eval_episodes: int = 10
+    steps: int = setting(1_000_000, "environment steps per seed", minimum=1)
+    eval_every: int = setting(10_000, "evaluate every this many steps", minimum=1)
+    eval_episodes: int = setting(10, "episodes per evaluation", minimum=1)
     actor: ActorConfig = field(default_factory=ActorConfig)
     td3: TD3Config = field(default_factory=TD3Config)
-    device: str = "cpu"
-    engine: str = "fast"  # fast | reference
-    threads: int | None = None  # torch threads; None: torch's default
-    compile: str = "auto"  # torch.compile the networks: on | off | auto (on for runs of 50 000 steps or more)
-    matmul: str = "float32"  # float32 | bf16 (matmul inputs rounded to bfloat16, float32 accumulation; see below)
+    device: str = setting("cpu", "cpu, cuda or cuda:N")
+    engine: str = setting("fast", "the spiking actor's forward pass: fast (layer-major) or reference (the literal "
+                                  "time loop of Algorithm 1)", choices=ENGINES)
+    threads: int | None = setting(None, "torch threads (default: torch's own; use 1 when several runs share the "
+                                        "cores)", minimum=1)
+    compile: str = setting("auto", "torch.compile the spiking actor and the no-grad target values (the trained "
+                                   "critic and DAN run eager, faster); auto: on for runs of 50000 steps or more",
+                           choices=COMPILE_MODES)
+    matmul: str = setting("float32", "matmul precision; bf16 rounds matmul inputs to bfloat16 with float32 "
+                                     "accumulation on AMX/AVX512-BF16 CPUs (TF32/bf16 on CUDA), which pays on large "
+                                     "matmuls (Ant, many seeds)", choices=MATMUL_PRECISIONS)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`

@@ -10,12 +10,16 @@ import argparse
 import os
 import sys
 
+from ..config import RunConfig, TD3Config
 from ..errors import TrainingDiverged, UserError
 from . import commands, grid_commands
-from .options import _add_actor_switches, _add_run_options, _non_negative_int, _positive_int
+from .options import _add_actor_switches, _add_run_options, _non_negative_int, _positive_int, add_setting
 
 EXIT_USER_ERROR = 2
 EXIT_DIVERGED = 3
+
+
+_GRIDS = "default: the grid's; paper: {paper}"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -27,23 +31,36 @@ class _Parser(argparse.ArgumentParser):
 
 # ------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
+    """The ``ilcsan`` parser: one sub-command per ``_add_*_command`` below."""
     parser = _Parser(prog="ilcsan", description="Fully spiking actor networks (ILC-SAN) for continuous control.")
     from .. import __version__
 
     parser.add_argument("--version", action="version", version=f"ilcsan {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for add_command in (_add_train_command, _add_evaluate_command, _add_export_command, _add_reproduce_command,
+                        _add_report_command, _add_energy_command, _add_actors_command, _add_tasks_command,
+                        _add_demo_command):
+        add_command(subparsers)
+    return parser
 
+
+def _add_train_command(subparsers) -> None:
+    """``ilcsan train``: the task, the actor switches and the run and TD3 options, all from the config."""
     train = subparsers.add_parser("train", help="train an actor with TD3",
                                 description="Train an actor with TD3 and a deep twin critic.")
-    train.add_argument("--task", default="Hopper", help="paper short name (see `ilcsan tasks`) or a Gymnasium id")
+    train.add_argument("--task", default=RunConfig.task,
+                       help=f"paper short name (see `ilcsan tasks`) or a Gymnasium id (default: {RunConfig.task})")
     _add_actor_switches(train)
-    _add_run_options(train, steps_default=1_000_000)
+    _add_run_options(train)
     train.add_argument("--out", help="run directory (default runs/<task>-<actor>-s<seeds>)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     train.add_argument("--label", help="row label for reports (default: the preset)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar (one line per evaluation)")
     train.set_defaults(handler=commands.cmd_train)
 
+
+def _add_evaluate_command(subparsers) -> None:
+    """``ilcsan evaluate RUN``: deterministic episodes with a trained actor."""
     evaluate = subparsers.add_parser("evaluate", help="evaluate a trained actor",
                                    description="Run deterministic episodes with a trained actor.")
     evaluate.add_argument("run", help="run directory, policy.pt or checkpoint.pt")
@@ -52,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--task", help="evaluate on another task of the same shape (default: the training task)")
     evaluate.set_defaults(handler=commands.cmd_evaluate)
 
+
+def _add_export_command(subparsers) -> None:
+    """``ilcsan export RUN``: an npz deploy bundle or a NIR graph."""
     export = subparsers.add_parser("export", help="export a trained actor (npz bundle or NIR graph)",
                                  description="Export a trained actor for deployment.")
     export.add_argument("run", help="run directory, policy.pt or checkpoint.pt")
@@ -60,27 +80,34 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--weights", default="float32", help="float32 (default) | int8 (per-layer scales)")
     export.set_defaults(handler=commands.cmd_export)
 
+
+def _add_reproduce_command(subparsers) -> None:
+    """``ilcsan reproduce TABLE|GRID.toml``: a paper table or a TOML grid as a grid of runs."""
     reproduce = subparsers.add_parser("reproduce", help="run a table of the paper as a grid of runs",
                                     description="Run the grid of a paper table (or your own TOML grid).")
     reproduce.add_argument("table", nargs="?", help="perf | decode | dec_intra | intra | layer | path/to/grid.toml")
     reproduce.add_argument("--list", action="store_true", help="list the tables and their grids")
-    reproduce.add_argument("--seeds", default=None, help="seeds (paper: 0-9)")
-    reproduce.add_argument("--steps", type=_positive_int, default=None, help="steps per run (paper: 1000000)")
-    reproduce.add_argument("--tasks", default=None, help="comma-separated subset of the table's tasks")
+    reproduce.add_argument("--seeds", default=None, help="seeds (default: the grid's; paper: 0-9)")
+    add_setting(reproduce, RunConfig, "steps", default=None, default_text=_GRIDS)
+    reproduce.add_argument("--tasks", default=None, help="comma-separated tasks: the table's, or any other "
+                           "(a paper task or a Gymnasium id with Box actions; no paper numbers)")
     reproduce.add_argument("--rows", default=None, help="comma-separated subset of the table's rows")
-    reproduce.add_argument("--eval-every", type=_positive_int, default=None, help="(paper: 10000)")
-    reproduce.add_argument("--eval-episodes", type=_positive_int, default=None, help="(paper: 10)")
-    reproduce.add_argument("--start-steps", type=_non_negative_int, default=None, help="(paper: 10000)")
+    for name in ("eval_every", "eval_episodes"):
+        add_setting(reproduce, RunConfig, name, default=None, default_text=_GRIDS)
+    add_setting(reproduce, TD3Config, "start_steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--out", default="runs/reproduce", help="grid directory (default runs/reproduce)")
     reproduce.add_argument("--backend", default="local", help="local (default) | ray")
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
     reproduce.add_argument("--workers", type=_positive_int, default=None, help="parallel runs (default: cores)")
-    reproduce.add_argument("--device", default="cpu", help="cpu | cuda")
-    reproduce.add_argument("--matmul", default="float32", help="float32 (default) | bf16 (see train --matmul)")
+    add_setting(reproduce, RunConfig, "device")
+    add_setting(reproduce, RunConfig, "matmul")
     reproduce.add_argument("--dashboard", action="store_true",
                            help="start the Ray dashboard (on 127.0.0.1) with the local Ray")
     reproduce.set_defaults(handler=grid_commands.cmd_reproduce)
 
+
+def _add_report_command(subparsers) -> None:
+    """``ilcsan report DIR``: the paper's tables and learning curves from runs on disk."""
     report = subparsers.add_parser("report", help="tables and learning curves from runs",
                                  description="Build the paper's tables and learning curves from runs on disk.")
     report.add_argument("directory", help="folder holding runs (searched recursively)")
@@ -88,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", default=None, help="where to write report.md/.tex/.csv and curves.png")
     report.set_defaults(handler=grid_commands.cmd_report)
 
+
+def _add_energy_command(subparsers) -> None:
+    """``ilcsan energy RUN...``: firing rates, operation counts and energy per inference."""
     energy = subparsers.add_parser("energy", help="firing rates, operation counts and energy per inference",
                                  description="Energy analysis of trained actors (Section V-F).")
     energy.add_argument("runs", nargs="+", help="run directories or policy.pt files")
@@ -96,22 +126,32 @@ def build_parser() -> argparse.ArgumentParser:
     energy.add_argument("--json", action="store_true", help="print JSON instead of tables")
     energy.set_defaults(handler=grid_commands.cmd_energy)
 
+
+def _add_actors_command(subparsers) -> None:
+    """``ilcsan actors``: the presets and their settings."""
     actors = subparsers.add_parser("actors", help="list the actor presets and their settings")
     actors.add_argument("--json", action="store_true", help="every switch of every preset as JSON")
     actors.set_defaults(handler=commands.cmd_actors)
 
+
+def _add_tasks_command(subparsers) -> None:
+    """``ilcsan tasks``: the paper's tasks and the Gymnasium versions used."""
     tasks = subparsers.add_parser("tasks", help="list the paper's tasks and their sizes")
     tasks.set_defaults(handler=commands.cmd_tasks)
 
+
+def _add_demo_command(subparsers) -> None:
+    """``ilcsan demo``: a short ILC-SAN run with its learning curve."""
     demo = subparsers.add_parser("demo", help="train ILC-SAN briefly on a small task and plot its learning curve",
                                description="A short ILC-SAN run that shows the whole pipeline in minutes.")
-    demo.add_argument("--task", default="InvertedPendulum-v4", help="task (default InvertedPendulum-v4)")
-    demo.add_argument("--steps", type=_positive_int, default=12_000, help="steps (default 12000)")
-    demo.add_argument("--seed", type=_non_negative_int, default=0)
+    demo.add_argument("--task", default=commands.DEMO_TASK, help=f"task (default {commands.DEMO_TASK})")
+    demo.add_argument("--steps", type=_positive_int, default=commands.DEMO_STEPS,
+                      help=f"steps (default {commands.DEMO_STEPS})")
+    demo.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the run (default 0)")
     demo.add_argument("--out", default="runs/demo", help="run directory (default runs/demo)")
-    demo.add_argument("--threads", type=_positive_int, default=None)
+    add_setting(demo, RunConfig, "threads")
     demo.set_defaults(handler=commands.cmd_demo)
-    return parser
+
 
 
 def _one_line(error: Exception) -> str:

@@ -1,10 +1,16 @@
-"""Command-line options shared by the commands: argument types, seed lists, the actor and run switches."""
+"""Command-line options shared by the commands: argument types, seed lists, and the actor, run and TD3
+switches, generated from the fields of :mod:`ilcsan.config` (flag, type, default, choices and help)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
+import types
+import typing
 from typing import Any
 
+from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of
 from ..errors import UserError
 
 # ------------------------------------------------------------------------------------ helpers
@@ -59,8 +65,6 @@ _non_negative_int = _int_at_least(0)
 
 
 def _finite_float(text: str) -> float:
-    import math
-
     try:
         value = float(text)
     except ValueError:
@@ -70,79 +74,114 @@ def _finite_float(text: str) -> float:
     return value
 
 
-ACTOR_SWITCHES: list[tuple[str, dict[str, Any]]] = [
-    ("--encoder", {"help": "input coding: pop-det (fully spiking) | pop-prob | pop | layer | two-neuron"}),
-    ("--neuron", {"help": "backbone neuron: clif | dynamic (MDC-SAN)"}),
-    ("--hidden-layers", {"type": _positive_int, "help": "number of hidden layers, 1-4 (paper: 2)"}),
-    ("--hidden-width", {"type": _positive_int, "help": "neurons per hidden layer (paper: 256)"}),
-    ("--intra", {"help": "intra-layer connections: intra | self | lateral | bias | lateral+bias | self+bias | "
-                         "self+lateral | none"}),
-    ("--decoder", {"help": "decoder statistic: last | max | mean (LI membrane voltage) | fr (firing rate)"}),
-    ("--alpha-v-li", {"type": _finite_float, "help": "voltage decay of the decoder's LI neuron (paper: 1.0)"}),
-    ("--timesteps", {"type": _positive_int, "help": "simulation time T per action (paper: 5)"}),
-    ("--population-in", {"type": _positive_int, "help": "encoder neurons per state dimension (paper: 10)"}),
-    ("--population-out", {"type": _positive_int, "help": "output neurons per action dimension (paper: 10)"}),
-    ("--alpha-c", {"type": _finite_float, "help": "CLIF current decay (paper: 0.5)"}),
-    ("--alpha-v", {"type": _finite_float, "help": "CLIF voltage decay (paper: 0.75)"}),
-    ("--v-th", {"type": _finite_float, "help": "CLIF threshold (paper: 0.5)"}),
-    ("--surrogate-width", {"type": _finite_float, "help": "rectangular surrogate window (paper: 0.5)"}),
-    ("--actor-lr", {"type": _finite_float, "dest": "learning_rate",
-                    "help": "actor learning rate (spiking 1e-4, DAN 1e-3)"}),
-]
-ACTOR_DESTS = ["encoder", "neuron", "hidden_layers", "hidden_width", "intra", "decoder", "alpha_v_li", "timesteps",
-               "population_in", "population_out", "alpha_c", "alpha_v", "v_th", "surrogate_width", "learning_rate"]
+# ------------------------------------------------------------------- switches generated from the config
+def _value_type(config_class: type, setting_field) -> Any:
+    """The Python type of a field (``int | None`` → int)."""
+    hint = typing.get_type_hints(config_class)[setting_field.name]
+    if isinstance(hint, types.UnionType):
+        hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
+    return hint
+
+
+def _argparse_type(config_class: type, setting_field) -> Any:
+    """The argparse type of a field: whole numbers of at least its minimum, finite floats, strings as given."""
+    kind = _value_type(config_class, setting_field)
+    if kind is int:
+        return _int_at_least(setting_field.metadata.get("minimum") or 0)
+    if kind is float:
+        return _finite_float
+    return None
+
+
+def _help(text: str, default: str | None) -> str:
+    """Help text with its default, ``%`` escaped for argparse."""
+    return (text if default is None else f"{text} ({default})").replace("%", "%%")
+
+
+def _metavar(setting_field) -> str:
+    """``{a,b,c}`` for a choice, else the flag's name in capitals."""
+    choices = setting_field.metadata["choices"]
+    if choices is not None:
+        return "{" + ",".join(choices) + "}"
+    return flag_of(setting_field)[2:].upper().replace("-", "_")
+
+
+def add_setting(parser, config_class: type, name: str, *, default: Any = dataclasses.MISSING,
+                default_text: str | None = None) -> None:
+    """Add the option of one field of a config class: flag, type, choices, help and default from the field.
+
+    ``default`` replaces the field's default (e.g. None where another layer decides); ``default_text`` then
+    says what that means in the help, ``{paper}`` standing for the field's default (the paper's value)."""
+    setting_field = next(item for item in dataclasses.fields(config_class) if item.name == name)
+    meta = setting_field.metadata
+    value = setting_field.default if default is dataclasses.MISSING else default
+    if default_text is not None:
+        shown = default_text.format(paper=setting_field.default)
+    else:
+        shown = None if value is None else f"default: {value}"
+    parser.add_argument(flag_of(setting_field), *meta["aliases"], dest=name, default=value,
+                        type=_argparse_type(config_class, setting_field), metavar=_metavar(setting_field),
+                        help=_help(meta["help"], shown))
+
+
+def actor_switches() -> list[tuple[str, tuple[str, ...], dict[str, Any]]]:
+    """(flag, aliases, argparse options) of every actor switch, generated from :class:`ActorConfig`'s fields.
+
+    The preset's switch defaults to ILC-SAN; every other switch defaults to None (the preset decides) and its
+    help names the paper's value, which is the field's default. A field with ``switches`` in its metadata is
+    offered through those switches instead (``hidden`` as ``--hidden-layers`` and ``--hidden-width``)."""
+    switches = []
+    for item in dataclasses.fields(ActorConfig):
+        meta = item.metadata
+        for part in meta["switches"]:
+            switches.append(("--" + part.flag, (), {
+                "dest": part.flag.replace("-", "_"), "type": _positive_int,
+                "help": _help(part.help, f"paper: {part.default_of(item.default)}")}))
+        if not meta["switches"]:
+            is_preset = item.name == "preset"
+            switches.append((flag_of(item), meta["aliases"], {
+                "dest": item.name, "default": item.default if is_preset else None, "metavar": _metavar(item),
+                "type": _argparse_type(ActorConfig, item),
+                "help": _help(meta["help"], f"{'default' if is_preset else 'paper'}: {item.default}")}))
+    return switches
 
 
 def _add_actor_switches(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("actor (a preset, then any switch overrides it; see `ilcsan actors`)")
-    group.add_argument("--actor", "--preset", dest="preset", default="ilc-san",
-                       help="ilc-san (default) | popsan | mdc-san | akl | dan")
-    for flag, options in ACTOR_SWITCHES:
-        group.add_argument(flag, **options)
+    for flag, aliases, options in actor_switches():
+        group.add_argument(flag, *aliases, **options)
 
 
-def _add_run_options(parser: argparse.ArgumentParser, steps_default: int | None) -> None:
+def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The actor switches given on the command line (None: the preset's value)."""
+    return {options["dest"]: getattr(args, options["dest"], None) for _, _, options in actor_switches()
+            if options["dest"] != "preset"}
+
+
+RUN_SETTINGS = ("eval_every", "eval_episodes", "device", "engine", "threads", "compile", "matmul")
+"""The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
+TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size")
+"""The :class:`~ilcsan.config.TD3Config` fields ``train`` offers."""
+
+
+def _add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", "--seed", dest="seeds", default="0",
                         help="seed or seeds: 0, 0-9 or 0,2,5; several seeds train together in one process")
-    parser.add_argument("--steps", type=_positive_int, default=steps_default,
-                        help=f"environment steps per seed (default {steps_default})")
-    parser.add_argument("--eval-every", type=_positive_int, default=None,
-                        help="evaluate every this many steps (paper: 10000)")
-    parser.add_argument("--eval-episodes", type=_positive_int, default=None,
-                        help="episodes per evaluation (paper: 10)")
-    parser.add_argument("--start-steps", type=_non_negative_int, default=None,
-                        help="uniformly random actions before the actor acts (paper: 10000)")
-    parser.add_argument("--update-after", type=_non_negative_int, default=None,
-                        help="first TD3 update at this step (paper: 1000)")
-    parser.add_argument("--update-every", type=_positive_int, default=None,
-                        help="TD3 updates run in chunks of this many, one per step (authors' code: 50)")
-    parser.add_argument("--batch-size", type=_positive_int, default=None, help="minibatch size (paper: 100)")
-    parser.add_argument("--device", default="cpu", help="cpu (default) | cuda | cuda:N")
-    parser.add_argument("--engine", default="fast", help="fast (layer-major, default) | reference (Algorithm 1)")
-    parser.add_argument("--threads", type=_positive_int, default=None,
-                        help="torch threads (default: torch's own; use 1 when several runs share the cores)")
-    parser.add_argument("--compile", default="auto",
-                        help="torch.compile the spiking actor and the no-grad target values (the trained critic and "
-                             "DAN run eager, faster): auto (default: on for runs of 50000 steps or more) | on | off")
-    parser.add_argument("--matmul", default="float32",
-                        help="float32 (default) | bf16: matmul inputs rounded to bfloat16 with float32 accumulation, "
-                             "on AMX/AVX512-BF16 CPUs (and TF32/bf16 on CUDA); pays on large matmuls (Ant, many seeds)")
+    add_setting(parser, RunConfig, "steps")
+    for name in RUN_SETTINGS:
+        add_setting(parser, RunConfig, name)
+    for name in TD3_SETTINGS:
+        add_setting(parser, TD3Config, name)
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
-    """A :class:`~ilcsan.training.RunConfig` from parsed ``train`` arguments."""
-    from ..config import RunConfig, TD3Config, actor_config
-
-    overrides = {dest: getattr(args, dest, None) for dest in ACTOR_DESTS}
-    actor = actor_config(args.preset, **overrides)
-    td3_overrides = {name: getattr(args, name) for name in ("start_steps", "update_after", "update_every",
-                                                             "batch_size") if getattr(args, name, None) is not None}
-    defaults = {"eval_every": 10_000, "eval_episodes": 10}
-    return RunConfig(
+    """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments."""
+    config = RunConfig(
         task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
-        eval_every=args.eval_every or defaults["eval_every"],
-        eval_episodes=args.eval_episodes or defaults["eval_episodes"],
-        actor=actor, td3=TD3Config(**td3_overrides), device=args.device, engine=args.engine, threads=args.threads,
-        compile=args.compile, matmul=args.matmul, label=getattr(args, "label", None),
+        actor=actor_config(args.preset, **actor_overrides(args)),
+        td3=TD3Config(**{name: getattr(args, name) for name in TD3_SETTINGS}),
+        label=getattr(args, "label", None), **{name: getattr(args, name) for name in RUN_SETTINGS},
     )
-
+    check_settings(config)
+    check_settings(config.td3)
+    return config

@@ -1,14 +1,22 @@
-"""The paper's eight tasks on today's Gymnasium (``shared/TASKS.md``), and any other Box-action task.
+"""The paper's eight tasks on today's Gymnasium, and any other registered task with a Box action space.
 
-The paper used Gym ``-v3``/``-v2`` ids on mujoco-py, which no longer installs. A short name maps to the
-Gymnasium id and keyword arguments closest to the paper's state size (Table "task"); a full Gymnasium id
-passes through as it is.
+The paper ran Gym ``-v3``/``-v2`` ids on mujoco-py, which no longer installs. A short name ("Hopper") maps
+to the Gymnasium id and keyword arguments whose state has the paper's size N (Table ``tab:task``): the
+MuJoCo ``-v4`` tasks, because ``-v5`` changed the state of Ant, Humanoid, HumanoidStandup and
+InvertedDoublePendulum. Gymnasium marks ``-v4`` "out of date"; that notice is expected here and is kept
+off the console (:data:`VERSION_NOTE`, printed once by ``ilcsan tasks``). A full Gymnasium id passes
+through as it is.
+
+The paper's facts (order, Gym id, N, M) come from :mod:`ilcsan.analysis.paper`; only the Gymnasium side
+(id, keyword arguments, a note) is declared here. Every failure to build a task, whatever Gymnasium or
+the simulator raises, becomes one :class:`UserError` naming the task, the cause and a fix.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -16,7 +24,14 @@ from typing import Any
 
 import numpy as np
 
+from ..analysis.paper import PAPER_TASKS as PAPER_ORDER
+from ..analysis.paper import TASKS as PAPER_DIMS
 from ..errors import UserError
+
+MUJOCO_VERSION = "v4"
+VERSION_NOTE = (f"MuJoCo tasks use Gymnasium's -{MUJOCO_VERSION} versions, whose states have the paper's sizes N "
+                "(-v5 changed those of Ant, Humanoid, HumanoidStandup and InvertedDoublePendulum); "
+                f"Gymnasium's notice that -{MUJOCO_VERSION} is out of date is expected and silenced.")
 
 
 @dataclass(frozen=True)
@@ -32,19 +47,24 @@ class TaskSpec:
     note: str = ""
 
 
-PAPER_TASKS: dict[str, TaskSpec] = {spec.name: spec for spec in (
-    TaskSpec("Ant", "Ant-v4", "Ant-v3", 111, 8, {"use_contact_forces": True},
-             "contact forces on, as the paper's 111-dim state (mujoco-py zeroed them)"),
-    TaskSpec("HalfCheetah", "HalfCheetah-v4", "HalfCheetah-v3", 17, 6),
-    TaskSpec("Hopper", "Hopper-v4", "Hopper-v3", 11, 3),
-    TaskSpec("Walker2d", "Walker2d-v4", "Walker2d-v3", 17, 6),
-    TaskSpec("Humanoid", "Humanoid-v4", "Humanoid-v3", 376, 17, note="actions bounded at ±0.4"),
-    TaskSpec("HumanoidStandup", "HumanoidStandup-v4", "HumanoidStandup-v2", 376, 17,
-             note="actions bounded at ±0.4"),
-    TaskSpec("InvertedDoublePendulum", "InvertedDoublePendulum-v4", "InvertedDoublePendulum-v2", 11, 1),
-    TaskSpec("BipedalWalker", "BipedalWalker-v3", "BipedalWalker-v3", 24, 4,
-             note="Box2D; episodes up to 1600 steps"),
-)}
+_GYMNASIUM_SIDE: dict[str, dict[str, Any]] = {
+    "Ant": {"kwargs": {"use_contact_forces": True},
+            "note": "contact forces on, as the paper's 111-dim state (mujoco-py zeroed them)"},
+    "Humanoid": {"note": "actions bounded at ±0.4"},
+    "HumanoidStandup": {"note": "actions bounded at ±0.4"},
+    "BipedalWalker": {"gym_id": "BipedalWalker-v3", "note": "Box2D; episodes up to 1600 steps"},
+}
+"""What differs from "the paper's task at -v4 without keyword arguments": ours, not the paper's."""
+
+
+def _spec(name: str) -> TaskSpec:
+    dims, ours = PAPER_DIMS[name], _GYMNASIUM_SIDE.get(name, {})
+    return TaskSpec(name, ours.get("gym_id", f"{name}-{MUJOCO_VERSION}"), dims.paper_id, dims.n, dims.m,
+                    dict(ours.get("kwargs", {})), ours.get("note", ""))
+
+
+PAPER_TASKS: dict[str, TaskSpec] = {name: _spec(name) for name in PAPER_ORDER}
+"""The paper's tasks by short name, in the paper's order."""
 
 _LOWER_NAMES = {name.lower(): name for name in PAPER_TASKS}
 
@@ -95,18 +115,64 @@ def _quiet_environment_creation():
         os.close(saved)
 
 
+def _one_line(text: str) -> str:
+    """An exception's message as one plain line: terminal colour codes dropped, whitespace collapsed."""
+    return " ".join(re.sub(r"\x1b\[[0-9;]*m", "", text).split()).rstrip(".")
+
+
+def _newest_other_version(gym_id: str) -> str | None:
+    """The newest registered version of the same environment, other than ``gym_id`` (None if none)."""
+    import gymnasium as gym
+
+    base, _, version = gym_id.rpartition("-v")
+    others = [(int(v), f"{base}-v{v}") for other in gym.registry
+              for b, _, v in [other.rpartition("-v")] if b == base and v.isdigit() and other != gym_id]
+    return max(others)[1] if others else None
+
+
+def _fix_for(name: str, gym_id: str, error: Exception) -> str:
+    """What the user can do about ``error`` raised while building ``gym_id``."""
+    paper_name = _LOWER_NAMES.get(gym_id.rpartition("-v")[0].lower())
+    if paper_name is not None and gym_id != PAPER_TASKS[paper_name].gym_id:
+        return f"use the paper's task as `--task {paper_name}` ({PAPER_TASKS[paper_name].gym_id} here)"
+    if isinstance(error, ModuleNotFoundError) and error.name:
+        return f"install the missing package ({error.name}) into this environment"
+    if isinstance(error, TypeError):
+        return "check the task's keyword arguments"
+    newer = _newest_other_version(gym_id)
+    if newer is not None:
+        return f"use another version of the task, e.g. --task {newer}"
+    return "install what it asks for, or pick another task (see `ilcsan tasks`)"
+
+
+def _build(name: str, gym_id: str, kwargs: dict[str, Any], seed: int | None):
+    """``gym.make`` and the first reset; any exception becomes one UserError line with the cause and a fix."""
+    import gymnasium as gym
+
+    env = None
+    try:
+        with _quiet_environment_creation():
+            env = gym.make(gym_id, **kwargs)
+            env.reset(seed=seed)
+    except Exception as error:  # noqa: BLE001 - every cause is reported to the user, in one line
+        if env is not None:
+            with contextlib.suppress(Exception):
+                env.close()
+        cause = _one_line(str(error)) or type(error).__name__
+        shown = name if name == gym_id else f"{name} ({gym_id})"
+        raise UserError(f"task {shown!r} cannot be built here: {cause}; {_fix_for(name, gym_id, error)}") from None
+    return env
+
+
 def make_env(name: str, seed: int | None = None):
-    """A Gymnasium environment for ``name`` with a Box action space, seeded if ``seed`` is given."""
+    """A Gymnasium environment for ``name`` with a Box action space and a flat Box observation, reset once
+    (seeded if ``seed`` is given)."""
     import gymnasium as gym
     from gymnasium import logger
 
     gym_id, kwargs = resolve_task(name)
     logger.min_level = logger.ERROR if hasattr(logger, "ERROR") else 40
-    with _quiet_environment_creation():
-        try:
-            env = gym.make(gym_id, **kwargs)
-        except gym.error.DependencyNotInstalled as error:
-            raise UserError(f"task {name!r} needs an extra package: {error}") from None
+    env = _build(name, gym_id, kwargs, seed)
     if not isinstance(env.action_space, gym.spaces.Box):
         env.close()
         raise UserError(
@@ -117,7 +183,6 @@ def make_env(name: str, seed: int | None = None):
         env.close()
         raise UserError(f"task {name!r} needs a flat Box observation space, got {env.observation_space}")
     if seed is not None:
-        env.reset(seed=seed)
         env.action_space.seed(seed)
     return env
 
@@ -132,7 +197,7 @@ def action_bounds(env) -> tuple[np.ndarray, np.ndarray]:
 
 
 def describe_tasks() -> list[dict[str, Any]]:
-    """Rows for ``ilcsan tasks``: the paper's tasks with the sizes the paper used."""
+    """Rows for ``ilcsan tasks``: the paper's tasks with the sizes the paper used (see :data:`VERSION_NOTE`)."""
     return [
         {"task": spec.name, "gym_id": spec.gym_id, "paper_id": spec.paper_id, "N": spec.state_dim,
          "M": spec.action_dim, "kwargs": spec.kwargs, "note": spec.note}

@@ -1,0 +1,151 @@
+"""The command line is generated from the config: every field's switch, type, default, choices and help."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import pytest
+
+from ilcsan.cli import build_parser, main
+from ilcsan.cli.options import RUN_SETTINGS, TD3_SETTINGS, actor_switches, build_run_config
+from ilcsan.config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of
+from ilcsan.errors import UserError
+
+PARSER = build_parser()
+
+
+def _subparser(name):
+    return PARSER._subparsers._group_actions[0].choices[name]
+
+
+@pytest.fixture
+def train_help(monkeypatch) -> str:
+    """``ilcsan train --help`` on one line per option (no wrapping inside a help text)."""
+    monkeypatch.setenv("COLUMNS", "1000")
+    return _subparser("train").format_help()
+
+
+@pytest.mark.parametrize("field", dataclasses.fields(ActorConfig), ids=lambda field: field.name)
+def test_every_actor_field_has_help_and_a_switch_in_train_help(field, train_help):
+    assert field.metadata.get("help"), f"ActorConfig.{field.name} has no help in its metadata"
+    actions = {flag: action for action in _subparser("train")._actions for flag in action.option_strings}
+    helps = {"--" + part.flag: part.help for part in field.metadata["switches"]} or {flag_of(field): None}
+    shown = " ".join(train_help.split())
+    for flag, help_text in helps.items():
+        assert flag in actions, f"ActorConfig.{field.name} has no switch {flag}"
+        assert actions[flag].help.startswith(help_text or field.metadata["help"])
+        assert actions[flag].help.replace("%%", "%") in shown
+
+
+@pytest.mark.parametrize("config_class, names", [(RunConfig, RUN_SETTINGS + ("steps",)), (TD3Config, TD3_SETTINGS)])
+def test_run_and_td3_options_show_the_configs_help_and_default(config_class, names, train_help):
+    text = train_help
+    for field in dataclasses.fields(config_class):
+        if field.name in names:
+            assert " ".join(field.metadata["help"].split()) in text
+            if field.default is not None:
+                assert f"(default: {field.default})" in text
+
+
+def test_no_switches_parse_to_the_config_defaults():
+    args = PARSER.parse_args(["train"])
+    assert build_run_config(args) == RunConfig()
+
+
+def _sample_value(field) -> tuple[str, object]:
+    """A command-line value other than the field's default, and what it should become."""
+    choices = field.metadata["choices"]
+    if choices is not None:
+        value = next(choice for choice in choices if choice != field.default and choice != "dan")
+        return value, value
+    if isinstance(field.default, float):
+        return "0.25", 0.25
+    return "3", 3
+
+
+@pytest.mark.parametrize("field", [field for field in dataclasses.fields(ActorConfig)
+                                   if not field.metadata["switches"]], ids=lambda field: field.name)
+def test_each_actor_switch_sets_its_field(field):
+    text, expected = _sample_value(field)
+    config = build_run_config(PARSER.parse_args(["train", flag_of(field), text]))
+    assert getattr(config.actor, field.name) == expected
+
+
+def test_hidden_switches_set_the_widths():
+    config = build_run_config(PARSER.parse_args(["train", "--hidden-layers", "3", "--hidden-width", "32"]))
+    assert config.actor.hidden == (32, 32, 32)
+
+
+@pytest.mark.parametrize("config_class, names, target", [(RunConfig, RUN_SETTINGS, lambda config: config),
+                                                         (TD3Config, TD3_SETTINGS, lambda config: config.td3)])
+def test_each_run_and_td3_option_sets_its_field(config_class, names, target):
+    for field in dataclasses.fields(config_class):
+        if field.name in names and field.name != "device":
+            text, expected = _sample_value(field)
+            config = build_run_config(PARSER.parse_args(["train", flag_of(field), text]))
+            assert getattr(target(config), field.name) == expected, field.name
+
+
+def test_actor_switch_list_has_no_duplicates_and_is_generated():
+    flags = [flag for flag, _aliases, _options in actor_switches()]
+    assert len(flags) == len(set(flags))
+    assert len(flags) == len(dataclasses.fields(ActorConfig)) + 1  # hidden: --hidden-layers and --hidden-width
+
+
+@pytest.mark.parametrize("make, flag", [
+    (lambda: actor_config(encoder="rate"), "--encoder"),
+    (lambda: actor_config(alpha_c=1.5), "--alpha-c"),
+    (lambda: actor_config(learning_rate=0.0), "--actor-lr"),
+    (lambda: actor_config(timesteps=0), "--timesteps"),
+    (lambda: check_settings(RunConfig(engine="turbo")), "--engine"),
+    (lambda: check_settings(RunConfig(matmul="fp8")), "--matmul"),
+    (lambda: check_settings(TD3Config(batch_size=0)), "--batch-size"),
+])
+def test_settings_are_checked_against_their_metadata(make, flag):
+    with pytest.raises(UserError, match=flag):
+        make()
+
+
+@pytest.mark.parametrize("argv, fragment", [(["--actor-lr", "0"], "--actor-lr"), (["--alpha-v", "2"], "--alpha-v"),
+                                            (["--compile", "maybe"], "--compile"),
+                                            (["--decoder", "median"], "--decoder")])
+def test_bad_switch_values_are_one_line(argv, fragment, tmp_path, capsys):
+    code = main(["train", *argv, "--steps", "10", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and fragment in err
+
+
+def test_building_the_parser_does_not_import_torch():
+    probe = ("import sys; from ilcsan.cli import build_parser; build_parser().parse_args(['train']); "
+             "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'gymnasium'}))")
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and result.stdout.strip() == "[]", result.stderr
+
+
+def test_demo_trains_the_documented_run_and_compares_with_random(monkeypatch, tmp_path, capsys):
+    import types
+
+    import ilcsan.analysis.report
+    import ilcsan.rl.evaluation
+    import ilcsan.rl.training
+    from ilcsan.cli import commands
+
+    seen = {}
+
+    def fake_train(config, out, resume=False, progress=None):
+        seen.update(config=config, resume=resume)
+        return [{"seed": 0, "best_return": -150.0, "best_step": 9000, "steps_done": config.steps}]
+
+    monkeypatch.setattr(ilcsan.rl.training, "train", fake_train)
+    monkeypatch.setattr(ilcsan.analysis.report, "collect_runs", lambda _out: [types.SimpleNamespace(
+        returns=(-1300.0, -160.0))])
+    monkeypatch.setattr(ilcsan.analysis.report, "plot_curves", lambda *_args: None)
+    monkeypatch.setattr(ilcsan.rl.evaluation, "random_policy_return", lambda *_args, **_kwargs: -1234.5)
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+    config = seen["config"]
+    assert (config.task, config.steps, config.seeds) == (commands.DEMO_TASK, commands.DEMO_STEPS, (0,))
+    assert config.eval_every * commands.DEMO_EVALUATIONS == config.steps and seen["resume"]
+    out = capsys.readouterr().out
+    assert "random policy scores -1234.5" in out and "-150.0 (step 9000)" in out and "its last -160.0" in out
