@@ -177,7 +177,7 @@ def test_export_refusals(tmp_path):
 
 def test_export_command_writes_nir_for_a_trained_run(trained_run, tmp_path):
     from ilcsan import load
-    from ilcsan.deploy.bundle import export
+    from ilcsan.deploy.export import export
 
     path = export(trained_run, "nir", tmp_path / "pendulum.nir")
     graph = nir.read(path)

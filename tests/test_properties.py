@@ -546,7 +546,7 @@ def test_resume_from_a_damaged_checkpoint_resumes_or_is_one_line(trained_run, tm
 
 @pytest.fixture(scope="module")
 def bundle_arrays(trained_run, tmp_path_factory):
-    from ilcsan.deploy.bundle import export
+    from ilcsan.deploy.export import export
 
     path = export(trained_run, "npz", tmp_path_factory.mktemp("bundle") / "actor.npz")
     with np.load(path, allow_pickle=False) as data:

@@ -198,7 +198,7 @@ def test_damaged_policy_file_is_one_line(run_copy, capsys, damage, fragment):
 @pytest.fixture
 def bundle(trained_run, tmp_path):
     path = tmp_path / "actor.npz"
-    from ilcsan.deploy.bundle import export
+    from ilcsan.deploy.export import export
 
     export(trained_run, "npz", path)
     with np.load(path, allow_pickle=False) as data:

@@ -59,7 +59,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from ..deploy import bundle as export
+    from ..deploy import export
 
     path = export.export(args.run, args.format, Path(args.out) if args.out else None, weights=args.weights)
     print(f"wrote {path}")

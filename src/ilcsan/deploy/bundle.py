@@ -1,4 +1,4 @@
-"""Export a trained actor: the ``.npz`` deploy bundle, or a NIR graph (:mod:`ilcsan.deploy.nir`).
+"""The ``.npz`` deploy bundle of a trained actor (``ilcsan export --format npz``; :mod:`ilcsan.deploy.export`).
 
 Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.deploy.runtime` with
 numpy only:
@@ -36,13 +36,12 @@ from typing import Any
 import numpy as np
 
 from ..config import INTRA_MASKS, ActorConfig
-from ..errors import UserError
 from ..files import atomic_savez
-from ..runs.policy import Policy, load
+from ..runs.policy import Policy
 from .runtime import CONFIG_META_KEYS
 
-FORMATS = ("npz", "nir")
 WEIGHTS = ("float32", "int8")
+"""Weight formats of a bundle: float32, or int8 with a float32 scale per layer (:mod:`ilcsan.deploy.quantize`)."""
 
 
 FIXED_META = {"v_reset": 0.0, "v_reset_li": 0.0, "output": "tanh"}
@@ -100,28 +99,3 @@ def export_npz(policy: Policy, path: Path, weights: str = "float32") -> Path:
         arrays, meta = quantize_bundle(arrays, meta)
     atomic_savez(path, meta=np.array(json.dumps(meta)), **arrays)
     return path
-
-
-def export(run: str | Path, format: str = "npz", out: Path | None = None, weights: str = "float32") -> Path:
-    """Export the policy of ``run`` in ``format`` to ``out`` (default ``<run>/actor.<format>``)."""
-    if format not in FORMATS:
-        raise UserError(f"--format {format!r} is not one of: {', '.join(FORMATS)}")
-    if weights not in WEIGHTS:
-        raise UserError(f"--weights {weights!r} is not one of: {', '.join(WEIGHTS)}")
-    policy = load(run)
-    run_path = Path(run)
-    folder = run_path if run_path.is_dir() else run_path.parent
-    suffix = "" if weights == "float32" else f".{weights}"
-    out = Path(out) if out is not None else folder / f"actor{suffix}.{format}"
-    if "\x00" in str(out):
-        raise UserError(f"--out {str(out)!r} contains a NUL byte; choose another --out")
-    if out.is_dir():  # --out FOLDER: the default file name inside it
-        out = out / f"actor{suffix}.{format}"
-    try:
-        if format == "nir":
-            from .nir import export_nir
-
-            return export_nir(policy, out)
-        return export_npz(policy, out, weights)
-    except OSError as error:
-        raise UserError(f"cannot write {out}: {error.strerror or error}; choose another --out") from None

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.paper import FIRST_FOUR, PAPER_TASKS
-from ..config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES
+from ..config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES, RunConfig
 from ..errors import UserError
 
 OVERRIDE_KEYS: tuple[str, ...] = (
@@ -37,9 +37,8 @@ DAN_OVERRIDE_KEYS: tuple[str, ...] = ("hidden_layers", "hidden_width")
 """The only switches that mean something for the deep actor (DAN)."""
 
 SEEDS = 10
-STEPS = 1_000_000
-EVAL_EVERY = 10_000
-EVAL_EPISODES = 10
+"""Seeds per cell in the paper (Section V-A); the protocol's budget and evaluation are the run defaults."""
+STEPS, EVAL_EVERY, EVAL_EPISODES = RunConfig.steps, RunConfig.eval_every, RunConfig.eval_episodes
 
 _SLUG = re.compile(r"^[a-z0-9][a-z0-9._+-]*$")
 _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")

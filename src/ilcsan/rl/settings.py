@@ -7,7 +7,7 @@ import os
 
 import torch
 
-from ..config import ENGINES, MATMUL_PRECISIONS, RunConfig
+from ..config import MATMUL_PRECISIONS, RunConfig, check_settings
 from ..errors import UserError
 
 COMPILE_AUTO_STEPS = 50_000
@@ -15,30 +15,19 @@ COMPILE_AUTO_STEPS = 50_000
 
 
 def validate_run(config: RunConfig) -> None:
-    """One clear sentence for every impossible run setting."""
-    if config.steps < 1:
-        raise UserError(f"--steps must be at least 1, got {config.steps}")
-    if config.eval_every < 1 or config.eval_episodes < 1:
-        raise UserError("--eval-every and --eval-episodes must be at least 1")
+    """One clear sentence for every impossible run setting: the ranges and choices declared with the settings
+    (:func:`~ilcsan.config.check_settings`), then what needs this process (seeds, threads, the device)."""
+    check_settings(config)
+    check_settings(config.td3)
     if not config.seeds:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):
         raise UserError(f"seeds must be distinct, got {list(config.seeds)}")
-    if config.engine not in ENGINES:
-        raise UserError(f"--engine {config.engine!r} is not one of: {', '.join(ENGINES)}")
-    if config.td3.batch_size < 1 or config.td3.update_every < 1 or config.td3.policy_delay < 1:
-        raise UserError("--batch-size, --update-every and --policy-delay must be at least 1")
-    _validate_device(config.device)
-    if config.compile not in ("auto", "on", "off"):
-        raise UserError(f"--compile {config.compile!r} is not one of: auto, on, off")
-    if config.matmul not in MATMUL_PRECISIONS:
-        raise UserError(f"--matmul {config.matmul!r} is not one of: {', '.join(MATMUL_PRECISIONS)}")
-    if config.threads is not None and config.threads < 1:
-        raise UserError(f"--threads must be at least 1, got {config.threads}")
     most_threads = 4 * (os.cpu_count() or 1)
     if config.threads is not None and config.threads > most_threads:
         raise UserError(f"--threads {config.threads} is more than 4 per core ({most_threads} here); use at most "
                         f"{os.cpu_count() or 1}")
+    _validate_device(config.device)
 
 
 def _validate_device(name: str) -> None:
