@@ -121,8 +121,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     config = demo_config(args.task, args.steps, args.seed, args.threads)
     print(f"ilcsan demo: training ILC-SAN on {config.task} for {config.steps} steps (a short run, not the paper's "
           f"1M-step protocol); results in {out}")
-    # always resume: running the quick start again continues (or just reports) the demo instead of refusing
-    results = train(config, out, resume=True, progress=None)
+    # running the quick start again continues (or just reports) the demo instead of refusing
+    from ..runs.directory import RunDirectory
+
+    results = train(config, out, resume=RunDirectory(out).holds_run(), progress=None)
     _print_results(results, out)
     from ..analysis.report import collect_runs, plot_curves
 
