@@ -28,7 +28,10 @@ ROUND_TRIP_TOLERANCE = 1e-5
 
 
 def test_cubalif_parameters_of_the_paper():
+    """dt = 1e-4 s: τ_syn = 0.2 ms, τ_mem = 0.4 ms, R = τ_mem/dt = 4 (snnTorch's importer asserts it), w_in = 2."""
     params = cubalif_parameters(0.5, 0.75, 0.5, 3)
+    assert np.float32(1e-4) / params["tau_syn"][0] == 0.5 and np.float32(1e-4) / params["tau_mem"][0] == 0.25
+    params.update(tau_syn=params["tau_syn"] / np.float32(1e-4), tau_mem=params["tau_mem"] / np.float32(1e-4))
     expected = {"tau_syn": 2.0, "w_in": 2.0, "tau_mem": 4.0, "r": 4.0, "v_leak": 0.0, "v_reset": 0.0,
                 "v_threshold": 0.5}
     for name, value in expected.items():
@@ -48,7 +51,7 @@ def test_cubalif_euler_step_is_clif():
             "lif": nir.CubaLIF(**cubalif_parameters(alpha_c, alpha_v, 0.5, 50)),
             "output": nir.Output(output_type=np.array([50])),
         }, edges=[("input", "affine"), ("affine", "lif"), ("lif", "output")])
-        simulated = simulate_nir(graph, currents)["output"]
+        simulated = simulate_nir(graph, currents, dt=1e-4)["output"]
         current, voltage, spikes = np.zeros(50, np.float32), np.zeros(50, np.float32), []
         for t in range(len(currents)):
             current = np.float32(alpha_c) * current + currents[t]
@@ -72,35 +75,42 @@ def case_id(overrides: dict) -> str:
     return "-".join(f"{key}={value}" for key, value in overrides.items()) or "ilc-san"
 
 
+@pytest.mark.parametrize("target", ["portable", "generic"])
 @pytest.mark.parametrize("overrides", ROUND_TRIPS, ids=case_id)
-def test_round_trip_matches_the_actor(tmp_path, overrides):
+def test_round_trip_matches_the_actor(tmp_path, overrides, target):
     policy = random_policy(**overrides)
-    path = export_nir(policy, tmp_path / "actor.nir")
+    path = export_nir(policy, tmp_path / "actor.nir", target=target)
     graph = nir.read(path)
     batch = observations(policy, 10)
     actions = np.stack([nir_action(graph, observation) for observation in batch])
     error = float(np.abs(actions - policy.predict(batch)).max())
     assert error < ROUND_TRIP_TOLERANCE, error
     spikes = simulate_nir(graph, host_encode(read_host(graph), batch[0]))
-    assert set(spikes) == {"output"}
+    assert set(spikes) == {"e_output"}
 
 
 def test_graph_layout(tmp_path):
     policy = random_policy(hidden=(32, 24))
-    graph = nir.read(export_nir(policy, tmp_path / "actor.nir"))
+    graph = nir.read(export_nir(policy, tmp_path / "actor.nir", target="generic"))
     types = {name: type(node).__name__ for name, node in graph.nodes.items()}
-    assert types == {"input": "Input", "fc1": "Affine", "lif1": "CubaLIF", "fc2": "Affine", "lif2": "CubaLIF",
-                     "fc3": "Affine", "lif3": "CubaLIF", "intra": "Linear", "decoder": "Affine", "li": "I",
-                     "output": "Output"}
+    # nir.read returns the nodes alphabetically: the names sort in evaluation order
+    assert list(types.items()) == [("a_input", "Input"), ("b1_fc", "Affine"), ("b1_lif", "CubaLIF"),
+                                   ("b2_fc", "Affine"), ("b2_lif", "CubaLIF"), ("b3_fc", "Affine"),
+                                   ("b3_intra", "Linear"), ("b3_lif", "CubaLIF"), ("c_decoder", "Affine"),
+                                   ("d_li", "I"), ("e_output", "Output")]
     edges = {tuple(edge) for edge in graph.edges}
-    assert {("lif3", "intra"), ("intra", "lif3"), ("lif3", "decoder"), ("decoder", "li")} <= edges
+    assert {("b3_lif", "b3_intra"), ("b3_intra", "b3_lif"), ("b3_lif", "c_decoder"), ("c_decoder", "d_li")} <= edges
+    portable = nir.read(export_nir(policy, tmp_path / "portable.nir"))
+    assert "d_li" not in portable.nodes and ("c_decoder", "e_output") in {tuple(e) for e in portable.edges}
+    assert read_host(portable)["integrator"] == "host" and read_host(graph)["integrator"] == "graph"
     # the output population (30) plus the clock neuron that delivers b_intra from t = 2 on
-    assert graph.nodes["lif3"].v_threshold.shape == (31,)
-    intra = graph.nodes["intra"].weight
+    assert graph.nodes["b3_lif"].v_threshold.shape == (31,)
+    intra = graph.nodes["b3_intra"].weight
     assert intra.shape == (31, 31) and not intra[:10, 10:30].any() and not intra[30].any()
     np.testing.assert_allclose(intra[:30, 30], policy.actor.intra.masked_bias()[0].detach().reshape(-1).numpy())
-    assert not graph.nodes["decoder"].weight[:, 30].any()
-    assert graph.metadata["format"] == "ilcsan-nir/1" and graph.metadata["encoder_mu"].shape == (11, 10)
+    assert not graph.nodes["c_decoder"].weight[:, 30].any()
+    assert graph.metadata["format"] == "ilcsan-nir/2" and graph.metadata["dt"] == 1e-4
+    assert graph.metadata["encoder_mu"].shape == (11, 10)
     host = read_host(graph)
     assert host["clock_neuron"] and host["T"] == graph.metadata["timesteps"] == 5 and host["statistic"] == "last"
 
@@ -140,25 +150,25 @@ def test_clock_neuron_delivers_the_intra_bias_from_step_two(tmp_path):
     batch = observations(policy, 8)
 
     def actions(g):
-        return np.stack([host_decode(host, simulate_nir(g, host_encode(host, obs))["output"]) for obs in batch])
+        return np.stack([host_decode(host, simulate_nir(g, host_encode(host, obs))["e_output"]) for obs in batch])
 
     expected = policy.predict(batch)
     assert np.abs(actions(graph) - expected).max() < ROUND_TRIP_TOLERANCE
     no_clock = build_graph(policy)
-    no_clock.nodes["intra"].weight[:, -1] = 0.0
+    no_clock.nodes["b3_intra"].weight[:, -1] = 0.0
     assert np.abs(actions(no_clock) - expected).max() > 1e-3
     at_step_one = build_graph(policy)
-    bias = at_step_one.nodes["intra"].weight[:-1, -1].copy()
-    at_step_one.nodes["fc3"].bias[:-1] += bias  # b_intra at every step, t = 1 included
-    at_step_one.nodes["intra"].weight[:, -1] = 0.0
+    bias = at_step_one.nodes["b3_intra"].weight[:-1, -1].copy()
+    at_step_one.nodes["b3_fc"].bias[:-1] += bias  # b_intra at every step, t = 1 included
+    at_step_one.nodes["b3_intra"].weight[:, -1] = 0.0
     assert np.abs(actions(at_step_one) - expected).max() > 1e-3
 
 
 def test_leaky_decoder_is_nir_li(tmp_path):
-    graph = build_graph(random_policy(decoder="mean", alpha_v_li=0.75))
-    li = graph.nodes["li"]
+    graph = build_graph(random_policy(decoder="mean", alpha_v_li=0.75), target="generic")
+    li = graph.nodes["d_li"]
     assert isinstance(li, nir.LI)
-    np.testing.assert_array_equal(li.tau, np.full(3, 4.0, np.float32))
+    np.testing.assert_array_equal(li.tau, np.full(3, np.float32(1e-4) * 4, np.float32))
     np.testing.assert_array_equal(li.r, np.full(3, 4.0, np.float32))
 
 

@@ -78,6 +78,9 @@ def _add_export_command(subparsers) -> None:
     export.add_argument("--format", default="npz", help="npz (deploy bundle) | nir (neuromorphic graph)")
     export.add_argument("--out", help="output file (default: <run>/actor.<format>)")
     export.add_argument("--weights", default="float32", help="float32 (default) | int8 (per-layer scales)")
+    export.add_argument("--target", default="portable",
+                        help="NIR profile: portable (default; the decoder's LI integrator on the host, runs in "
+                             "snnTorch and Norse) | generic (the LI integrator in the graph)")
     export.set_defaults(handler=commands.cmd_export)
 
 

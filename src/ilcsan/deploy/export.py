@@ -12,8 +12,11 @@ from .bundle import WEIGHTS, export_npz
 FORMATS = ("npz", "nir")
 
 
-def export(run: str | Path, format: str = "npz", out: Path | None = None, weights: str = "float32") -> Path:
-    """Export the policy of ``run`` in ``format`` to ``out`` (default ``<run>/actor.<format>``)."""
+def export(run: str | Path, format: str = "npz", out: Path | None = None, weights: str = "float32",
+           target: str = "portable") -> Path:
+    """Export the policy of ``run`` in ``format`` to ``out`` (default ``<run>/actor.<format>``); ``target`` selects
+    the NIR profile (:data:`ilcsan.deploy.nir.TARGETS`: portable = the LI integrator on the host, generic = in
+    the graph)."""
     if format not in FORMATS:
         raise UserError(f"--format {format!r} is not one of: {', '.join(FORMATS)}")
     if weights not in WEIGHTS:
@@ -31,7 +34,7 @@ def export(run: str | Path, format: str = "npz", out: Path | None = None, weight
         if format == "nir":
             from .nir import export_nir  # needs the nir package; a bundle does not
 
-            return export_nir(policy, out)
+            return export_nir(policy, out, target)
         return export_npz(policy, out, weights)
     except OSError as error:
         raise UserError(f"cannot write {out}: {error.strerror or error}; choose another --out") from None

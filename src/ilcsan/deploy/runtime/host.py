@@ -1,7 +1,7 @@
 """What the host computes around a deployed spiking network (dense floating point, numpy only).
 
 The frozen observation normaliser, the encoders, the statistic of the decoder's LI voltages and the
-action scaling. :class:`~.actor.DeployedActor` and the NIR host path (:mod:`ilcsan.deploy.nir`) both call
+action scaling. :class:`~.actor.DeployedActor` and the NIR host path (:mod:`ilcsan.deploy.nir.host`) both call
 these functions; they mirror the PyTorch actor's :mod:`ilcsan.snn.encoders` and :mod:`ilcsan.snn.decoders`
 operation for operation, in float32.
 """
