@@ -146,6 +146,11 @@ def test_demo_trains_the_documented_run_and_compares_with_random(monkeypatch, tm
     assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
     config = seen["config"]
     assert (config.task, config.steps, config.seeds) == (commands.DEMO_TASK, commands.DEMO_STEPS, (0,))
-    assert config.eval_every * commands.DEMO_EVALUATIONS == config.steps and seen["resume"]
+    assert config.eval_every * commands.DEMO_EVALUATIONS == config.steps
+    assert not seen["resume"], "a first demo starts a new run (no 'no checkpoint yet' note)"
     out = capsys.readouterr().out
     assert "random policy scores -1234.5" in out and "-150.0 (step 9000)" in out and "its last -160.0" in out
+    (tmp_path / "demo").mkdir()
+    (tmp_path / "demo" / "metrics.csv").write_text("step,eval_return_mean\n1000,-1300.0\n")
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+    assert seen["resume"], "running the quick start again continues the demo it holds instead of refusing"

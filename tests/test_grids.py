@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from ilcsan.analysis import paper
+from ilcsan.errors import UserError
 from ilcsan.experiments import tables as grids
 from ilcsan.experiments.tables import TABLES, load_grid
 
@@ -17,18 +18,47 @@ from ilcsan.experiments.tables import TABLES, load_grid
 # Built-in grids
 
 
+PAPER_TABLES = [name for name in TABLES if name != "beyond"]
+
+
 def test_the_five_tables_with_the_papers_protocol() -> None:
-    assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer"]
+    assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer", "beyond"]
     assert TABLES["perf"].tasks == paper.PAPER_TASKS
     assert len(TABLES["perf"].tasks) == 8
     for name in ("decode", "dec_intra", "intra", "layer"):
         assert TABLES[name].tasks == ("Ant", "HalfCheetah", "Hopper", "Walker2d")
-    for spec in TABLES.values():
+    for spec in (TABLES[name] for name in PAPER_TABLES):
         assert (spec.seeds, spec.steps, spec.eval_every, spec.eval_episodes) == (10, 1_000_000, 10_000, 10)
-    assert [len(spec.rows) for spec in TABLES.values()] == [8, 10, 4, 8, 4]
+    assert [len(TABLES[name].rows) for name in PAPER_TABLES] == [8, 10, 4, 8, 4]
 
 
-@pytest.mark.parametrize("name", list(TABLES))
+def test_the_beyond_grid_sets_each_rows_training_method(tmp_path) -> None:
+    from ilcsan.experiments.grid import expand_grid
+
+    spec = TABLES["beyond"]
+    assert (spec.tasks, spec.seeds, spec.steps) == (("Hopper",), 5, 200_000)
+    runs = expand_grid(spec, tmp_path).runs
+    methods = {(run.row.slug, run.config.actor.preset, run.config.td3.target_actor) for run in runs}
+    assert methods == {("ilc-san", "ilc-san", "spiking"), ("ilc-san+proxy", "ilc-san", "proxy"),
+                       ("dan", "dan", "spiking")}
+    assert len(runs) == 15
+
+
+def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> None:
+    row = {"slug": "proxy", "preset": "ilc-san", "td3": {"target_actor": "proxy", "proxy_iterations": 1,
+                                                        "proxy_lr": 3e-3}}
+    spec = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [row]})
+    assert spec.rows[0].td3 == {"target_actor": "proxy", "proxy_iterations": 1, "proxy_lr": 3e-3}
+    for td3, message in (({"target_actor": "ann"}, "target-actor"), ({"proxy_iterations": 0}, "at least 1"),
+                         ({"gamma": 0.9}, "unknown key"), ({"proxy_lr": "fast"}, "td3")):
+        with pytest.raises(UserError, match=message):
+            grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{**row, "td3": td3}]})
+    with pytest.raises(UserError, match="own target"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
+                              "rows": [{"slug": "dan", "preset": "dan", "td3": {"target_actor": "proxy"}}]})
+
+
+@pytest.mark.parametrize("name", PAPER_TABLES)
 def test_row_slugs_and_labels_match_the_transcribed_paper_tables(name: str) -> None:
     spec, published = TABLES[name], paper.REWARD_TABLES[name]
     assert [row.slug for row in spec.rows] == list(published.slugs)

@@ -41,6 +41,15 @@ COMPILE_MODES: tuple[str, ...] = ("auto", "on", "off")
 # and accumulate in float32 (AMX / AVX512-BF16 CPUs; elsewhere it stays float32); on CUDA torch then uses
 # TF32/bf16 tensor cores. Neuron states, spikes, losses and optimiser stay float32 either way.
 MATMUL_PRECISIONS = {"float32": "highest", "bf16": "medium"}
+TARGET_ACTOR_PAPERS: dict[str, str] = {
+    "spiking": "the soft-updated copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
+    "proxy": "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)",
+}
+"""The actor in TD3's target values (``--target-actor``), each with its paper."""
+TARGET_ACTORS: tuple[str, ...] = tuple(TARGET_ACTOR_PAPERS)
+PROXY_HIDDEN: tuple[int, ...] = (512, 512)
+"""The proxy actor's hidden widths (ReLU MLP, tanh output): the default ``--proxy_hidden_sizes 512 512`` of the
+Proxy Target code as reproduced in ``madao2333/Proxy-Target-with-PLIF`` (main.py)."""
 
 
 class IntraMask(NamedTuple):
@@ -258,6 +267,12 @@ class TD3Config:
     update_after: int = setting(1_000, "first TD3 update at this step", minimum=0)
     update_every: int = setting(50, "TD3 updates run in chunks of this many, one per environment step, "
                                     "as in the authors' code", minimum=1)
+    target_actor: str = setting("spiking", "actor in TD3's target values: the soft-updated spiking target (the paper), "
+                                           "or Proxy Target's continuous proxy imitating the online actor (Xu et al. "
+                                           "2025; spiking actors only)", choices=TARGET_ACTORS)
+    proxy_iterations: int = setting(3, "Proxy Target: regression steps of the proxy per TD3 update (K; 1 with "
+                                       "--proxy-lr 3e-3 is the cheap setting)", minimum=1)
+    proxy_lr: float = setting(1e-3, "Proxy Target: the proxy's Adam learning rate", bounds="positive")
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)

@@ -61,13 +61,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from ..deploy import export
 
-    path = export.export(args.run, args.format, Path(args.out) if args.out else None, weights=args.weights)
+    path = export.export(args.run, args.format, Path(args.out) if args.out else None, weights=args.weights,
+                         target=args.target)
     print(f"wrote {path}")
     return 0
 
 
 def cmd_actors(args: argparse.Namespace) -> int:
-    from ..config import PRESET_SUMMARIES, actor_config
+    from ..config import PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, actor_config
 
     if args.json:
         print(json.dumps({name: actor_config(name).to_dict() for name in PRESET_SUMMARIES}, indent=2))
@@ -83,6 +84,9 @@ def cmd_actors(args: argparse.Namespace) -> int:
                      "lr": c.learning_rate, "fully spiking": "yes" if c.fully_spiking else "no",
                      "what": summary})
     _print_table(rows, ["preset", "encoder", "neuron", "hidden", "intra", "decoder", "lr", "fully spiking", "what"])
+    print("\ntraining methods for spiking actors (TD3 options; DAN keeps TD3's own target):")
+    _print_table([{"option": f"--target-actor {name}", "what": paper} for name, paper in TARGET_ACTOR_PAPERS.items()],
+                 ["option", "what"])
     return 0
 
 

@@ -160,7 +160,8 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 RUN_SETTINGS = ("eval_every", "eval_episodes", "device", "engine", "threads", "compile", "matmul")
 """The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
-TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size")
+TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size", "target_actor",
+                "proxy_iterations", "proxy_lr")
 """The :class:`~ilcsan.config.TD3Config` fields ``train`` offers."""
 
 

@@ -55,7 +55,7 @@ def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) 
 def _row_switches(row: RowSpec) -> str:
     if not row.runnable:
         return "(the paper's numbers only; no code exists)"
-    return " ".join(f"{key}={value}" for key, value in row.actor().items())
+    return " ".join(f"{key}={value}" for key, value in {**row.actor(), **row.td3}.items())
 
 
 def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:

@@ -119,7 +119,8 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
         for row in rows:
             base = RunConfig(task=task, seeds=(seeds[0],), steps=shrunk.steps, eval_every=shrunk.eval_every,
                              eval_episodes=shrunk.eval_episodes, actor=actor_config(row.preset, **row.overrides),
-                             td3=td3, device=options.device, matmul=options.matmul, threads=1, label=row.label,
+                             td3=dataclasses.replace(td3, **row.td3), device=options.device,
+                             matmul=options.matmul, threads=1, label=row.label,
                              table=spec.name, row=row.slug)
             for seed in seeds:
                 directory = out / spec.name / task_folder(task) / row.slug / f"seed{seed}"

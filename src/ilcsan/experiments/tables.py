@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.paper import FIRST_FOUR, PAPER_TASKS
-from ..config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES, RunConfig
+from ..config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES, RunConfig, TD3Config, check_settings
 from ..errors import UserError
 
 OVERRIDE_KEYS: tuple[str, ...] = (
@@ -57,6 +57,8 @@ class RowSpec:
     preset: str | None
     overrides: Mapping[str, Any] = field(default_factory=dict, hash=False)
     runnable: bool = True
+    td3: Mapping[str, Any] = field(default_factory=dict, hash=False)
+    """TD3 settings of this row (training methods such as ``target_actor``), over the grid's own."""
 
     def actor(self) -> dict[str, Any]:
         """The actor switches of this row: ``{"preset": ..., **overrides}``."""
@@ -160,15 +162,32 @@ LAYER = TableSpec(
     rows=tuple(_row(f"hidden-{n}", f"N_hidden={n}", "ilc-san", hidden_layers=n) for n in range(1, 5)),
 )
 
-TABLES: dict[str, TableSpec] = {spec.name: spec for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER)}
-"""The paper's five reward tables as grids, by name."""
+BEYOND = TableSpec(
+    name="beyond",
+    caption="Beyond the paper: ILC-SAN with the training methods that followed it, against DAN",
+    tasks=("Hopper",),
+    rows=(
+        _row("ilc-san", "ILC-SAN", "ilc-san"),
+        RowSpec("ilc-san+proxy", "ILC-SAN + Proxy Target", "ilc-san", {}, True, {"target_actor": "proxy"}),
+        _row("dan", "DAN", "dan"),
+    ),
+    seeds=5,
+    steps=200_000,
+)
+"""Our grid (not a table of the paper): Proxy Target (Xu et al., NeurIPS 2025) against plain ILC-SAN and DAN on
+Hopper, 5 seeds × 200 000 steps by default. NoisySAN exploration has no row yet (not implemented)."""
+
+TABLES: dict[str, TableSpec] = {spec.name: spec for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND)}
+"""The paper's five reward tables as grids, by name, and our ``beyond`` grid."""
 
 
 # ----------------------------------------------------------------------------------------------
 # User grids from TOML
 
 _TOP_KEYS = ("name", "caption", "tasks", "rows", "seeds", "steps", "eval_every", "eval_episodes")
-_ROW_KEYS = ("slug", "label", "preset", "overrides")
+_ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
+ROW_TD3_KEYS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr")
+"""The TD3 settings a grid row may set (its training method); the grid's other TD3 settings are shared."""
 
 
 def is_task_name(task: str) -> bool:
@@ -309,7 +328,20 @@ def _row_from_dict(item: Any, where: str) -> RowSpec:
         if bad:
             raise UserError(f"{where}: the deep actor (preset 'dan') has no spiking switch {bad[0]!r}; "
                             f"it takes only {', '.join(DAN_OVERRIDE_KEYS)}")
-    return RowSpec(slug=slug, label=label, preset=preset, overrides=checked)
+    return RowSpec(slug=slug, label=label, preset=preset, overrides=checked, td3=_row_td3(item, preset, where))
+
+
+def _row_td3(item: Mapping[str, Any], preset: str, where: str) -> dict[str, Any]:
+    """A row's ``td3`` table (its training method), checked against :class:`TD3Config`'s declared settings."""
+    td3 = item.get("td3", {})
+    _check_keys(td3, ROW_TD3_KEYS, f"{where}: td3")
+    try:
+        check_settings(TD3Config(**td3))
+    except (UserError, TypeError) as error:
+        raise UserError(f"{where}: td3: {error}") from None
+    if preset == "dan" and td3.get("target_actor", "spiking") != "spiking":
+        raise UserError(f"{where}: td3: the deep actor (preset 'dan') keeps TD3's own target actor")
+    return dict(td3)
 
 
 def _override(key: str, value: Any, where: str) -> Any:

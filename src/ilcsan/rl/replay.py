@@ -47,6 +47,11 @@ class ReplayBuffer:
         seeds = np.arange(len(generators))[:, None]
         return {name: array[seeds, indices] for name, array in self.data.items()}
 
+    def sample_states(self, generators: list[np.random.Generator], batch_size: int) -> np.ndarray:
+        """States only (K, B, N), indices drawn as :meth:`sample` draws them (Proxy Target's minibatches)."""
+        indices = np.stack([generator.integers(0, self.size, batch_size) for generator in generators])
+        return self.data["obs"][np.arange(len(generators))[:, None], indices]
+
     # ---------------------------------------------------------------------------- checkpoints
     def write_segment(self, directory: RunDirectory, seed_index: int, start: int) -> str | None:
         """Write rows inserted at [start, total) of one seed as ``replay/<start>-<end>.npz``; returns its name."""

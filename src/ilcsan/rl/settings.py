@@ -19,6 +19,9 @@ def validate_run(config: RunConfig) -> None:
     (:func:`~ilcsan.config.check_settings`), then what needs this process (seeds, threads, the device)."""
     check_settings(config)
     check_settings(config.td3)
+    if config.td3.target_actor == "proxy" and config.actor.network != "spiking":
+        raise UserError("--target-actor proxy replaces a spiking actor's target by a continuous proxy; DAN is "
+                        "continuous already and keeps TD3's own target: drop --target-actor for DAN")
     if not config.seeds:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):

@@ -10,6 +10,9 @@ One update (``update``), in TD3's order:
   y = r + γ (1 − terminal) min_j Q'_j(s', ã)                                clipped double-Q
   critic ← ∇ Σ_j (Q_j(s, a) − y)²
   every d updates: actor ← ∇ −Q_1(s, π(s)); targets ← τ θ + (1 − τ) θ'      delayed policy updates
+
+With ``target_actor = "proxy"`` (Proxy Target, :mod:`ilcsan.rl.proxy`) π' is a continuous proxy fitted to π
+before every update instead of the soft-updated copy of π.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from torch import nn
 from ..config import ActorConfig, TD3Config
 from ..snn.actor import build_actor
 from ..snn.ensemble import EnsembleMLP, seed_generators
+from .proxy import ProxyTarget, build_proxy
 
 CRITIC_SALT = 2
 NOISE_SALT = 3
@@ -86,12 +90,16 @@ class TD3Agent:
         self.device = torch.device(device)
         self.actor = build_actor(actor_config, state_dim, action_dim, action_scale, action_offset, self.seeds,
                                  engine=engine).to(self.device)
-        self.actor_target = copy.deepcopy(self.actor)
+        fused = self.device.type in ("cpu", "cuda")
+        self.proxy: ProxyTarget | None = None  # Proxy Target: π' is the proxy, fitted before every update
+        if td3.target_actor == "proxy":
+            proxy = build_proxy(state_dim, action_dim, action_scale, action_offset, self.seeds).to(self.device)
+            self.proxy = ProxyTarget(proxy, td3, fused)
+        self.actor_target = copy.deepcopy(self.actor) if self.proxy is None else self.proxy.actor
         self.critic = TwinCritic(state_dim, action_dim, td3.critic_hidden, self.seeds).to(self.device)
         self.critic_target = copy.deepcopy(self.critic)
-        for module in (self.actor_target, self.critic_target):
+        for module in (self.actor_target, self.critic_target) if self.proxy is None else (self.critic_target,):
             module.requires_grad_(False)
-        fused = self.device.type in ("cpu", "cuda")
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate, fused=fused)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr, fused=fused)
         # Only a spiking actor is compiled (and, below, the no-grad target values): its many small neuron-update
@@ -148,7 +156,12 @@ class TD3Agent:
         return -self.critic.first(batch["obs"], self.actor_fn(batch["obs"])).mean(dim=-1).sum()
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:
-        """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps)."""
+        """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps).
+
+        With a proxy target, ``batch["proxy_obs"]`` (K_iterations, K_seeds, B, N) holds the proxy's minibatches.
+        """
+        if self.proxy is not None:
+            self.proxy.fit(self.actor_fn, batch["proxy_obs"])
         critic_loss = self.critic_loss(batch)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
@@ -162,7 +175,8 @@ class TD3Agent:
             loss.backward()
             self.actor_optimizer.step()
             self.critic.requires_grad_(True)
-            polyak_update(self.actor_target, self.actor, self.td3.tau)
+            if self.proxy is None:
+                polyak_update(self.actor_target, self.actor, self.td3.tau)
             polyak_update(self.critic_target, self.critic, self.td3.tau)
             actor_loss = loss.detach()
         return {"critic_loss": critic_loss.detach(), "actor_loss": actor_loss}

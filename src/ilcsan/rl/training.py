@@ -146,6 +146,9 @@ class Trainer:
             arrays = self.replay.sample(self.rngs, td3.batch_size)
             arrays["obs"] = self.normalizer.normalize(arrays["obs"])
             arrays["next_obs"] = self.normalizer.normalize(arrays["next_obs"])
+            if td3.target_actor == "proxy":  # Proxy Target: a fresh minibatch of states per regression step
+                arrays["proxy_obs"] = np.stack([self.normalizer.normalize(self.replay.sample_states(
+                    self.rngs, td3.batch_size)) for _ in range(td3.proxy_iterations)])
             losses = self.agent.update(self.agent.to_batch(arrays))
             critic_total = critic_total + losses["critic_loss"]
             if losses["actor_loss"] is not None:

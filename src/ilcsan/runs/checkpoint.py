@@ -85,8 +85,8 @@ def load_optimizer(optimizer: torch.optim.Optimizer, module: torch.nn.Module,
         optimizer.state[param] = entry
 
 
-AGENT_PARTS = (("actor", "actor", 1), ("actor_target", "target actor", 1), ("critic", "critic", 2),
-               ("critic_target", "target critic", 2))
+AGENT_PARTS = (("actor", "actor", 1), ("actor_target", "target actor (Proxy Target: the proxy)", 1),
+               ("critic", "critic", 2), ("critic_target", "target critic", 2))
 """(attribute of the agent and key of the checkpoint, what it is called in errors, rows per seed)."""
 
 
@@ -95,6 +95,8 @@ def agent_state(agent: Any, index: int) -> dict[str, Any]:
     state = {key: slice_params(getattr(agent, key), index, factor) for key, _, factor in AGENT_PARTS}
     state["actor_optimizer"] = slice_optimizer(agent.actor_optimizer, agent.actor, index, 1)
     state["critic_optimizer"] = slice_optimizer(agent.critic_optimizer, agent.critic, index, 2)
+    if agent.proxy is not None:  # Proxy Target: the proxy is the "actor_target" above, here its optimizer
+        state["proxy_optimizer"] = slice_optimizer(agent.proxy.optimizer, agent.proxy.actor, index, 1)
     return state
 
 
@@ -104,6 +106,8 @@ def load_agent(agent: Any, states: list[dict[str, Any]]) -> None:
         load_params(getattr(agent, key), [state[key] for state in states], what)
     load_optimizer(agent.actor_optimizer, agent.actor, [state["actor_optimizer"] for state in states])
     load_optimizer(agent.critic_optimizer, agent.critic, [state["critic_optimizer"] for state in states])
+    if agent.proxy is not None:
+        load_optimizer(agent.proxy.optimizer, agent.proxy.actor, [state["proxy_optimizer"] for state in states])
     agent.updates = states[0]["updates"]
 
 
