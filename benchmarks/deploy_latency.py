@@ -3,6 +3,8 @@
 Usage:
     python benchmarks/deploy_latency.py                 # ILC-SAN, Hopper- and Ant-sized random actors
     python benchmarks/deploy_latency.py --runs RUN ...  # trained runs (observations from one episode)
+    python benchmarks/deploy_latency.py --baseline DIR  # also time another copy of the runtime folder (e.g. an
+                                                        # older commit's src/ilcsan/deploy/runtime), interleaved
 
 A random actor is calibrated to the paper's firing rates (Table fr): one bias shift of the backbone is
 bisected until the mean hidden-layer rate matches the task's FC2 rate, because latency grows with
@@ -75,7 +77,36 @@ def trained_policy(run: str, seed: int = 0):
     return policy, np.array(seen[:500])
 
 
-def measure(label: str, policy, inputs, calls: int) -> dict:
+def load_runtime_copy(folder: str):
+    """``DeployedActor`` of another copy of the runtime folder (it is standalone: numpy and the standard library),
+    imported under a private name so that both versions run in this process."""
+    import importlib.util
+
+    init = Path(folder) / "__init__.py"
+    spec = importlib.util.spec_from_file_location("baseline_runtime", init, submodule_search_locations=[folder])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["baseline_runtime"] = module
+    spec.loader.exec_module(module)
+    return module.DeployedActor
+
+
+def interleaved(calls: dict, inputs, rounds: int, per_round: int = 300) -> dict[str, float]:
+    """Median µs of each call, timed in alternating blocks so that both see the same machine load."""
+    times: dict[str, list[float]] = {name: [] for name in calls}
+    for call in calls.values():
+        for observation in inputs[:20]:
+            call(observation)
+    for _ in range(rounds):
+        for name, call in calls.items():
+            for index in range(per_round):
+                observation = inputs[index % len(inputs)]
+                start = time.perf_counter()
+                call(observation)
+                times[name].append(time.perf_counter() - start)
+    return {name: statistics.median(values) * 1e6 for name, values in times.items()}
+
+
+def measure(label: str, policy, inputs, calls: int, baseline=None) -> dict:
     from ilcsan.analysis.energy import measure_firing_rates
     from ilcsan.deploy import DeployedActor
     from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
@@ -89,12 +120,21 @@ def measure(label: str, policy, inputs, calls: int) -> dict:
     runtime_us, runtime_p10 = latency_microseconds(runtime.act, inputs, calls)
     int8_us, _ = latency_microseconds(int8_runtime.act, inputs, calls)
     torch_us, torch_p10 = latency_microseconds(policy.predict, inputs, max(200, calls // 4))
+    compared = {}
+    if baseline is not None:
+        old = baseline.from_arrays(arrays, meta)
+        old.act(inputs[0])
+        runtime.act(inputs[0])
+        if old.last_sop_by_layer != runtime.last_sop_by_layer:
+            raise SystemExit(f"the baseline counts {old.last_sop_by_layer}, this runtime {runtime.last_sop_by_layer}")
+        medians = interleaved({"baseline": old.act, "this": runtime.act}, inputs, max(1, calls // 300))
+        compared = {"baseline µs (A/B)": f"{medians['baseline']:.0f}", "this µs (A/B)": f"{medians['this']:.0f}"}
     return {"actor": label, "N, M": f"{policy.state_dim}, {policy.action_dim}",
             "fr FC1/FC2/FC3": "/".join(f"{100 * rates[name]:.0f}%" for name in ("FC1", "FC2", "FC3")),
             "SOP/inference": f"{runtime.total_sop / runtime.inferences:,.0f}",
             "runtime µs": f"{runtime_us:.0f} (p10 {runtime_p10:.0f})", "int8 µs": f"{int8_us:.0f}",
             "PyTorch µs": f"{torch_us:.0f} (p10 {torch_p10:.0f})", "PyTorch/runtime": f"{torch_us / runtime_us:.1f}×",
-            "max |Δaction|": f"{error:.1e}"}
+            "max |Δaction|": f"{error:.1e}", **compared}
 
 
 def print_table(rows: list[dict]) -> None:
@@ -110,7 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", nargs="*", default=[], help="trained run directories (default: random actors)")
     parser.add_argument("--calls", type=int, default=3000, help="calls per latency median (runtime)")
+    parser.add_argument("--baseline", help="another copy of the runtime folder to time against this one (A/B)")
     args = parser.parse_args(argv)
+    baseline = load_runtime_copy(args.baseline) if args.baseline else None
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
@@ -119,11 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs:
         for run in args.runs:
             policy, inputs = trained_policy(run)
-            rows.append(measure(f"{policy.actor_config.preset} {policy.task} ({run})", policy, inputs, args.calls))
+            rows.append(measure(f"{policy.actor_config.preset} {policy.task} ({run})", policy, inputs, args.calls,
+                                baseline))
     else:
         for task in TASKS:
             policy, inputs = calibrated_policy(task)
-            rows.append(measure(f"ILC-SAN {task}-sized (random, rates ≈ Table fr)", policy, inputs, args.calls))
+            rows.append(measure(f"ILC-SAN {task}-sized (random, rates ≈ Table fr)", policy, inputs, args.calls,
+                                baseline))
     print_table(rows)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"\nmedian (10th percentile) of {args.calls} runtime calls per cell; 1 torch thread; "

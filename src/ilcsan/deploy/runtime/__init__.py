@@ -16,9 +16,12 @@ Synaptic layers, event-driven (counted as SOP, Section V-F):
   t = 1..T−1 adds column q of W_intra^m onto its own population. A chip holds only the synapses the
   ablation mask keeps (full: P_out, ``self``: 1, ``lateral``: P_out − 1, ``bias``/``none``: 0 per spike)
   and that is what is counted; numpy adds the whole block-diagonal column (zeros elsewhere), because one
-  vectorised add is cheaper here than a scatter.
+  vectorised add is cheaper here than a scatter. With float weights these rows are stacked under FC(L+1)'s
+  and both run as one accumulate per step (the output layer's input and its own previous spikes are
+  adjacent in the pipeline's spike history; b_intra joins the bias from t = 2 on).
 * Group FC (population decoder, X_t^m = W_D^m S_t^{L,m} + b_D^m): a spike adds one weight into the LI
-  neuron of its population (one ``bincount`` over the spike train's events).
+  neuron of its population (each spike selects its weight from a (T, P_out, M) table, added per population
+  in neuron order; :func:`~.synapses.steps_accumulator`).
 
 The layers run pipelined (:class:`~.pipeline.Workspace`): at tick τ layer l computes its step τ − l, so
 the neuron updates of all active layers are one vector operation per tick; the result is Algorithm 1's.

@@ -21,7 +21,7 @@ from .errors import UserError
 from .host import deterministic_spike_train, gaussian_stimulation, li_voltages, normalize, select_statistic, squash
 from .neurons import CLIF, Dynamic
 from .pipeline import Workspace
-from .synapses import Synapses, accumulate_steps
+from .synapses import Synapses, steps_accumulator
 
 
 @dataclass
@@ -53,6 +53,14 @@ class DeployedActor:
 
     def __post_init__(self) -> None:
         self.workspace = Workspace(self.timesteps, self.layers, self.neuron, self.intra)
+        # per-call constants, resolved once: SOP per spike of each train, the decoder's accumulate, the host's
+        inputs = self.workspace.trains[:-1]  # each layer's presynaptic train: one spike = fan_out SOP
+        self._fan_outs = [(layer.name, spikes, layer.fan_out) for layer, spikes in zip(self.layers, inputs,
+                                                                                         strict=True)]
+        if self.intra is not None:  # output spikes of steps 1..T−1 feed I_2..I_T
+            self._fan_outs.append((self.intra.name, self.workspace.trains[-1][:-1], self.intra.fan_out))
+        self._decode = steps_accumulator(self.decoder)
+        self._host = (float(self.meta["enc_v_th"]), float(self.meta["alpha_v_li"]), str(self.meta["statistic"]))
 
     # ---------------------------------------------------------------------------- construction
     @classmethod
@@ -120,18 +128,14 @@ class DeployedActor:
     def _forward(self, state: np.ndarray) -> np.ndarray:
         """Normalised state (N,) → O (M,); the spike trains stay in ``workspace.trains`` until the next call."""
         workspace = self.workspace
+        encoder_threshold, alpha_li, statistic = self._host
         stimulation = gaussian_stimulation(state, self.mu, self.sigma)
-        deterministic_spike_train(stimulation, self.timesteps, float(self.meta["enc_v_th"]), out=workspace.encoded)
+        deterministic_spike_train(stimulation, self.timesteps, encoder_threshold, out=workspace.encoded)
         workspace.run()
-        trains = workspace.trains
-        counts = {layer.name: int(np.count_nonzero(spikes)) * layer.fan_out
-                  for layer, spikes in zip(self.layers, trains, strict=False)}
-        if self.intra is not None:  # output spikes of steps 1..T−1 feed I_2..I_T
-            counts[self.intra.name] = int(np.count_nonzero(trains[-1][:-1])) * self.intra.fan_out
-        drive, counts[self.decoder.name] = accumulate_steps(self.decoder, trains[-1])
-        voltages = li_voltages(drive, float(self.meta["alpha_v_li"]))
+        counts = {name: int(np.count_nonzero(spikes)) * fan_out for name, spikes, fan_out in self._fan_outs}
+        drive, counts[self.decoder.name] = self._decode(workspace.trains[-1])
         self._count(counts)
-        return select_statistic(voltages, self.meta["statistic"])
+        return select_statistic(li_voltages(drive, alpha_li), statistic)
 
     def _count(self, counts: dict[str, int]) -> None:
         self.last_sop_by_layer = counts
@@ -149,7 +153,7 @@ class DeployedActor:
         if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
             raise UserError(f"observation has shape {array.shape}; this actor expects ({self.state_dim},) "
                             f"or (B, {self.state_dim})")
-        if not np.all(np.isfinite(array)):
+        if not np.isfinite(array).all():
             raise UserError("observation contains NaN or inf; check the sensor readings before acting")
         return (array[None] if array.ndim == 1 else array), array.ndim == 1
 

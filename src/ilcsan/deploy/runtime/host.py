@@ -15,8 +15,8 @@ from .errors import UserError
 
 def normalize(observation: np.ndarray, mean: np.ndarray, std: np.ndarray, clip: float) -> np.ndarray:
     """The frozen normaliser clip((s − mean)/std, ±clip) of raw observations (…, N) → float32."""
-    return np.clip((np.asarray(observation, np.float64) - np.asarray(mean, np.float64)) / np.asarray(std, np.float64),
-                   -clip, clip).astype(np.float32)
+    scaled = (np.asarray(observation, np.float64) - np.asarray(mean, np.float64)) / np.asarray(std, np.float64)
+    return np.minimum(np.maximum(scaled, -clip), clip).astype(np.float32)  # = np.clip, without its overhead
 
 
 def gaussian_stimulation(state: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -28,12 +28,17 @@ def gaussian_stimulation(state: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -
 def deterministic_spike_train(stimulation: np.ndarray, timesteps: int, threshold: float,
                               out: np.ndarray | None = None) -> np.ndarray:
     """E_pop_det's soft-reset IF neurons (Eq. (4)): v ← v + A; S = [v > V_th]; v ← v − V_th S → (T, D) bool."""
-    voltage = np.zeros_like(stimulation)
     spikes = np.empty((timesteps, stimulation.size), dtype=bool) if out is None else out
+    threshold = np.float32(threshold)
+    voltage = stimulation.copy()  # 0 + A
+    reset = np.empty_like(voltage)
     for t in range(timesteps):
-        voltage += stimulation
-        np.greater(voltage, np.float32(threshold), out=spikes[t])
-        np.subtract(voltage, np.float32(threshold), out=voltage, where=spikes[t])
+        if t:
+            np.add(voltage, stimulation, voltage)
+        np.greater(voltage, threshold, spikes[t])
+        if t + 1 < timesteps:  # v − V_th·S: V_th or exactly 0 subtracted
+            np.multiply(spikes[t], threshold, reset)
+            np.subtract(voltage, reset, voltage)
     return spikes
 
 
@@ -71,7 +76,7 @@ def encode(kind: str, state: np.ndarray, timesteps: int, mu: np.ndarray | None =
 def li_voltages(inputs: np.ndarray, alpha: float) -> np.ndarray:
     """LI neuron (Eq. (7), V_reset = 0): V_t = α V_{t−1} + X_t over inputs (T, M) → (T, M)."""
     if alpha == 1.0:  # an integrator: the running sum, added in the same order
-        return np.cumsum(inputs, axis=0, dtype=np.float32)
+        return np.add.accumulate(inputs, axis=0, dtype=np.float32)  # np.cumsum, without its overhead
     voltages = np.empty_like(inputs)
     voltage = np.zeros(inputs.shape[1], inputs.dtype)
     for t in range(inputs.shape[0]):
@@ -92,4 +97,5 @@ def select_statistic(voltages: np.ndarray, statistic: str) -> np.ndarray:
 
 def squash(output: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """action = offset + scale · tanh(O), float32."""
-    return (np.asarray(offset, np.float32) + np.asarray(scale, np.float32) * np.tanh(output)).astype(np.float32)
+    return (np.asarray(offset, np.float32) + np.asarray(scale, np.float32) * np.tanh(output)).astype(np.float32,
+                                                                                                   copy=False)
