@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+import textwrap
 from pathlib import Path
 
 import nir
@@ -85,9 +86,10 @@ def test_snntorch_recurrent_rewrite_is_wrong_and_the_workaround_is_right():
 
 
 def snippets() -> dict[str, str]:
-    text = (DOCS / "nir-consumers.md").read_text()
-    blocks = re.findall(r"^## (\S+).*?```python\n(.*?)```", text, re.S | re.M)
-    return {name.lower(): code for name, code in blocks}
+    """The README's consumer snippets (Deployment section, ``**Name version**`` then a python block), dedented."""
+    text = (DOCS.parent / "README.md").read_text()
+    blocks = re.findall(r"^  \*\*(\S+) [\d.]+\*\*.*?```python\n(.*?)^  ```", text, re.S | re.M)
+    return {name.lower(): textwrap.dedent(code) for name, code in blocks}
 
 
 @pytest.mark.parametrize("consumer", ["norse", "snntorch"])
