@@ -13,7 +13,7 @@ import torch
 from ilcsan.config import PROXY_HIDDEN, RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl.td3 import TD3Agent
-from ilcsan.rl.training import Trainer, train
+from ilcsan.rl.training import train
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
 PROXY_TD3 = TD3Config(target_actor="proxy", target_noise=0.0)
@@ -140,22 +140,11 @@ def tiny_proxy_run(**overrides) -> RunConfig:
 
 
 def test_an_interrupted_proxy_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
-    from test_training import read_metrics
+    from test_training import interrupt_after_first_checkpoint, read_metrics
 
     config = tiny_proxy_run()
     train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
-    original, calls = Trainer._write_checkpoints, {"n": 0}
-
-    def crash_after_first_checkpoint(self):
-        original(self)
-        calls["n"] += 1
-        if calls["n"] == 1:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(Trainer, "_write_checkpoints", crash_after_first_checkpoint)
-    with pytest.raises(KeyboardInterrupt):
-        train(config, tmp_path / "interrupted", progress=False, log=lambda *_: None)
-    monkeypatch.setattr(Trainer, "_write_checkpoints", original)
+    interrupt_after_first_checkpoint(config, tmp_path / "interrupted", monkeypatch)
     train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
     for seed in (0, 1):
         straight = read_metrics(tmp_path / "straight" / f"seed{seed}" / "metrics.csv")

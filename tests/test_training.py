@@ -137,12 +137,9 @@ def test_multi_seed_run_equals_single_runs(tmp_path):
     assert rows_seed0[0]["eval_return_mean"] != rows_together[0]["eval_return_mean"]
 
 
-def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
-    config = tiny_run(steps=450)
-    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
-
-    original = Trainer._write_checkpoints
-    calls = {"n": 0}
+def interrupt_after_first_checkpoint(config, out, monkeypatch) -> None:
+    """Train ``config`` into ``out`` and stop it (as Ctrl-C would) right after its first checkpoint."""
+    original, calls = Trainer._write_checkpoints, {"n": 0}
 
     def crash_after_first_checkpoint(self):
         original(self)
@@ -152,8 +149,14 @@ def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
 
     monkeypatch.setattr(Trainer, "_write_checkpoints", crash_after_first_checkpoint)
     with pytest.raises(KeyboardInterrupt):
-        train(config, tmp_path / "interrupted", progress=False, log=lambda *_: None)
+        train(config, out, progress=False, log=lambda *_: None)
     monkeypatch.setattr(Trainer, "_write_checkpoints", original)
+
+
+def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
+    config = tiny_run(steps=450)
+    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
+    interrupt_after_first_checkpoint(config, tmp_path / "interrupted", monkeypatch)
     assert len(read_metrics(tmp_path / "interrupted" / "metrics.csv")) == 1
     with pytest.raises(UserError, match="--resume"):
         train(config, tmp_path / "interrupted", progress=False, log=lambda *_: None)
