@@ -161,15 +161,10 @@ def test_a_compiled_proxy_agent_updates_like_the_eager_one():
     td3 = TD3Config(target_actor="proxy", proxy_iterations=2)
     eager = TD3Agent(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
     compiled = TD3Agent(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
+    from test_training import assert_same_updates
+
     rng = np.random.default_rng(4)
-    for _ in range(4):
-        arrays = _random_batch(rng, 1, 2)
-        eager.update(eager.to_batch(arrays))
-        compiled.update(compiled.to_batch(arrays))
-    for module in ("actor", "critic", "actor_target"):
-        for (name, p_eager), (_, p_compiled) in zip(getattr(eager, module).named_parameters(),
-                                                    getattr(compiled, module).named_parameters(), strict=True):
-            assert torch.allclose(p_eager, p_compiled, atol=1e-4), f"{module}.{name}"
+    assert_same_updates(eager, compiled, [_random_batch(rng, 1, 2) for _ in range(4)], atol=1e-4)
 
 
 def test_ilcsan_actors_lists_the_training_methods_with_their_papers(capsys):

@@ -91,14 +91,7 @@ def test_compiled_agent_updates_like_the_eager_agent():
     assert compiled.compiled and compiled.actor_fn is not compiled.actor
     assert compiled.target_values_fn != compiled.target_values and eager.target_values_fn == eager.target_values
     rng = np.random.default_rng(1)
-    for _ in range(4):  # two delayed actor updates
-        arrays = _random_batch(rng, 1, 16, 3, 2)
-        eager.update(eager.to_batch(arrays))
-        compiled.update(compiled.to_batch(arrays))
-    for module in ("actor", "critic", "actor_target"):
-        for (name, p_eager), (_, p_compiled) in zip(getattr(eager, module).named_parameters(),
-                                                    getattr(compiled, module).named_parameters(), strict=True):
-            assert torch.allclose(p_eager, p_compiled, atol=1e-5), f"{module}.{name}"
+    assert_same_updates(eager, compiled, [_random_batch(rng, 1, 16, 3, 2) for _ in range(4)], atol=1e-5)
     state = rng.normal(size=(1, 3)).astype(np.float32)
     assert np.allclose(eager.act(state), compiled.act(state), atol=1e-5)
     # A deep actor (DAN) is not compiled even when asked: eager is faster for MLPs.
@@ -151,6 +144,17 @@ def interrupt_after_first_checkpoint(config, out, monkeypatch) -> None:
     with pytest.raises(KeyboardInterrupt):
         train(config, out, progress=False, log=lambda *_: None)
     monkeypatch.setattr(Trainer, "_write_checkpoints", original)
+
+
+def assert_same_updates(eager, compiled, batches, atol: float) -> None:
+    """Give two agents the same minibatches; their actor, critic and target actor must stay equal."""
+    for arrays in batches:
+        eager.update(eager.to_batch(arrays))
+        compiled.update(compiled.to_batch(arrays))
+    for module in ("actor", "critic", "actor_target"):
+        for (name, p_eager), (_, p_compiled) in zip(getattr(eager, module).named_parameters(),
+                                                    getattr(compiled, module).named_parameters(), strict=True):
+            assert torch.allclose(p_eager, p_compiled, atol=atol), f"{module}.{name}"
 
 
 def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
