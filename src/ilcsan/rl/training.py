@@ -143,12 +143,7 @@ class Trainer:
         td3 = self.config.td3
         critic_total, actor_total, actor_count = 0.0, 0.0, 0
         for _ in range(td3.update_every):
-            arrays = self.replay.sample(self.rngs, td3.batch_size)
-            arrays["obs"] = self.normalizer.normalize(arrays["obs"])
-            arrays["next_obs"] = self.normalizer.normalize(arrays["next_obs"])
-            if td3.target_actor == "proxy":  # Proxy Target: a fresh minibatch of states per regression step
-                arrays["proxy_obs"] = np.stack([self.normalizer.normalize(self.replay.sample_states(
-                    self.rngs, td3.batch_size)) for _ in range(td3.proxy_iterations)])
+            arrays = sample_minibatch(self.replay, self.normalizer, self.rngs, td3)
             losses = self.agent.update(self.agent.to_batch(arrays))
             critic_total = critic_total + losses["critic_loss"]
             if losses["actor_loss"] is not None:
@@ -203,6 +198,19 @@ class Trainer:
         for lock in self.locks:
             lock.close()
         self.eval_envs, self.locks = [], []
+
+
+def sample_minibatch(replay: ReplayBuffer, normalizer: RunningNormalizer, rngs: list[np.random.Generator],
+                     td3) -> dict[str, np.ndarray]:
+    """One minibatch per seed with normalised states; with Proxy Target also a fresh minibatch of states per
+    regression step (``proxy_obs``, (iterations, K, B, N))."""
+    arrays = replay.sample(rngs, td3.batch_size)
+    arrays["obs"] = normalizer.normalize(arrays["obs"])
+    arrays["next_obs"] = normalizer.normalize(arrays["next_obs"])
+    if td3.target_actor == "proxy":
+        arrays["proxy_obs"] = np.stack([normalizer.normalize(replay.sample_states(rngs, td3.batch_size))
+                                        for _ in range(td3.proxy_iterations)])
+    return arrays
 
 
 def check_losses(critic_loss: float, actor_loss: float, step: int) -> None:
