@@ -83,10 +83,6 @@ class RunDirectory:
         """True once training has written anything worth keeping (a checkpoint or an evaluation)."""
         return any(self.file(name).exists() for name in (CHECKPOINT, PENDING_CHECKPOINT, METRICS))
 
-    def has_evaluation(self) -> bool:
-        """True for a folder a report can read: a configuration and at least one evaluation file."""
-        return self.file(CONFIG).exists() and (self.file(METRICS).exists() or self.file(RESULT).exists())
-
     def has_checkpoint(self, pending: bool = False) -> bool:
         """True when ``checkpoint.pt`` (or, with ``pending``, ``checkpoint.next.pt``) exists."""
         return self.file(PENDING_CHECKPOINT if pending else CHECKPOINT).exists()
