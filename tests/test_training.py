@@ -81,22 +81,29 @@ def test_first_critic_equals_the_first_twin_of_every_seed():
     torch.testing.assert_close(critic.first(state, action), both[:, 0])
 
 
-def test_compiled_agent_updates_like_the_eager_agent():
-    """torch.compile of the spiking actor changes nothing but speed: same actions, same weights after updates.
-
-    The trained critic is never compiled (plain MLP; faster eager, see td3.py); the no-grad target values are."""
-    config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    eager = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
-    compiled = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
-    assert compiled.compiled and compiled.actor_fn is not compiled.actor
-    assert compiled.target_values_fn != compiled.target_values and eager.target_values_fn == eager.target_values
+@pytest.mark.parametrize("preset, target_actor", [("ilc-san", "spiking"), ("ilc-san", "proxy"), ("dan", "spiking")])
+def test_compiled_update_program_equals_the_eager_update(preset, target_actor):
+    """The whole update as one compiled program (fullgraph=True: any graph break fails) leaves the same actor,
+    critic, targets and Adam states as the eager update, over 12 updates (6 delayed), for 2 stacked seeds."""
+    small = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
+    config = actor_config(preset, **small[preset])
+    td3 = TD3Config(target_actor=target_actor, critic_hidden=(16, 16))
+    eager = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8))
+    compiled = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True)
+    assert eager.program is None and compiled.program is not None
     rng = np.random.default_rng(1)
-    assert_same_updates(eager, compiled, [_random_batch(rng, 1, 16, 3, 2) for _ in range(4)], atol=1e-5)
-    state = rng.normal(size=(1, 3)).astype(np.float32)
+    batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
+    if target_actor == "proxy":
+        for arrays in batches:
+            arrays["proxy_obs"] = rng.normal(size=(td3.proxy_iterations, 2, 16, 3)).astype(np.float32)
+    assert_same_updates(eager, compiled, batches, atol=2e-5)
+    for optimizer in ("actor_optimizer", "critic_optimizer"):
+        for before, after in zip(getattr(eager, optimizer).state.values(), getattr(compiled, optimizer).state.values(),
+                                 strict=True):
+            for key in ("step", "exp_avg", "exp_avg_sq"):
+                torch.testing.assert_close(before[key], after[key], atol=1e-6, rtol=1e-4)
+    state = rng.normal(size=(2, 3)).astype(np.float32)
     assert np.allclose(eager.act(state), compiled.act(state), atol=1e-5)
-    # A deep actor (DAN) is not compiled even when asked: eager is faster for MLPs.
-    assert not TD3Agent(actor_config("dan", hidden=(8,)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(0,),
-                        compile=True).compiled
 
 
 @pytest.fixture
@@ -149,9 +156,12 @@ def interrupt_after_first_checkpoint(config, out, monkeypatch) -> None:
 def assert_same_updates(eager, compiled, batches, atol: float) -> None:
     """Give two agents the same minibatches; their actor, critic and target actor must stay equal."""
     for arrays in batches:
-        eager.update(eager.to_batch(arrays))
-        compiled.update(compiled.to_batch(arrays))
-    for module in ("actor", "critic", "actor_target"):
+        losses = eager.update(eager.to_batch(arrays)), compiled.update(compiled.to_batch(arrays))
+        for key in ("critic_loss", "actor_loss"):
+            assert (losses[0][key] is None) == (losses[1][key] is None)
+            if losses[0][key] is not None:
+                assert float(losses[0][key]) == pytest.approx(float(losses[1][key]), rel=1e-4, abs=1e-5), key
+    for module in ("actor", "critic", "actor_target", "critic_target"):
         for (name, p_eager), (_, p_compiled) in zip(getattr(eager, module).named_parameters(),
                                                     getattr(compiled, module).named_parameters(), strict=True):
             assert torch.allclose(p_eager, p_compiled, atol=atol), f"{module}.{name}"

@@ -28,6 +28,7 @@ from ..config import ActorConfig, TD3Config
 from ..snn.actor import build_actor
 from ..snn.ensemble import EnsembleMLP, seed_generators
 from .proxy import ProxyTarget, build_proxy
+from .update_program import UpdateProgram
 
 CRITIC_SALT = 2
 NOISE_SALT = 3
@@ -43,8 +44,10 @@ class TwinCritic(nn.Module):
         generators = seed_generators(seeds, CRITIC_SALT)
         self.mlp.reset_parameters([g for g in generators for _ in range(2)])
 
-    def forward(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """(K, B, N), (K, B, M) → Q values (K, 2, B)."""
+    def forward(self, state: torch.Tensor, action: torch.Tensor, first_only: bool = False) -> torch.Tensor:
+        """(K, B, N), (K, B, M) → Q values (K, 2, B); with ``first_only`` Q_1 alone, (K, B)."""
+        if first_only:
+            return self.first(state, action)
         inputs = torch.cat([state, action], dim=-1)
         k, b, d = inputs.shape
         twin = inputs.unsqueeze(1).expand(k, 2, b, d).reshape(2 * k, b, d)
@@ -81,7 +84,8 @@ def polyak_update(target: nn.Module, source: nn.Module, tau: float) -> None:
 
 class TD3Agent:
     """K TD3 agents in stacked weights on one device; ``engine`` is the actor's forward pass ('fast' or
-    'reference'), ``compile`` compiles a spiking actor and the target values."""
+    'reference'); ``compile`` runs each update as one compiled program (:mod:`ilcsan.rl.update_program`)
+    and compiles a spiking actor's acting pass."""
 
     def __init__(self, actor_config: ActorConfig, td3: TD3Config, state_dim: int, action_dim: int,
                  action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
@@ -102,23 +106,20 @@ class TD3Agent:
             module.requires_grad_(False)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate, fused=fused)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr, fused=fused)
-        # Only a spiking actor is compiled (and, below, the no-grad target values): its many small neuron-update
-        # ops fuse into a few loops (2-2.5x faster). The trained critic and DAN are plain MLPs that run faster
-        # eager: inductor's CPU code stores ReLU's backward mask (a bool tensor) ~15x slower than eager (torch
-        # 2.13, measured: 245 µs vs 16 µs for 51 200 elements); a compiled critic made an update 6 % slower.
-        self.compiled = compile and actor_config.network == "spiking"
-        if self.compiled:
+        # compile: the whole update runs as one compiled program (UpdateProgram) and a spiking actor's acting
+        # forward pass is compiled too (its many small neuron-update ops fuse into a few loops). DAN acts eagerly:
+        # its three matmuls leave nothing to fuse.
+        self.compiled = compile
+        if compile:
             prepare_compilation()
-        # What the hot path calls: compiled graphs (one per input shape) or the modules and methods themselves.
-        wrap = (lambda function: torch.compile(function, dynamic=False)) if self.compiled else (lambda f: f)
-        self.actor_fn = wrap(self.actor)
-        # The target computation has no backward pass, so it compiles whole (target actor, noise, target critics).
-        self.target_values_fn = wrap(self.target_values)
+        spiking = actor_config.network == "spiking"
+        self.actor_fn = torch.compile(self.actor, dynamic=False) if compile and spiking else self.actor
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)
         self.offset = torch.as_tensor(np.asarray(action_offset), dtype=torch.float32, device=self.device)
         self.updates = 0
+        self.program = UpdateProgram(self) if compile else None
 
     # ------------------------------------------------------------------------------- acting
     @torch.no_grad()
@@ -147,7 +148,7 @@ class TD3Agent:
         """Σ_k Σ_j mean_b (Q_j(s, a) − y)², with y from the target actor and the min of the target twins."""
         with torch.no_grad():
             noise = self._standard_noise(batch["next_obs"].shape[1])
-            target = self.target_values_fn(batch["next_obs"], noise, batch["reward"], batch["terminal"])
+            target = self.target_values(batch["next_obs"], noise, batch["reward"], batch["terminal"])
         q_values = self.critic(batch["obs"], batch["action"])
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
@@ -162,6 +163,11 @@ class TD3Agent:
         """
         if self.proxy is not None:
             self.proxy.fit(self.actor_fn, batch["proxy_obs"])
+        if self.program is not None:
+            self.updates += 1
+            noise = self._standard_noise(batch["next_obs"].shape[1])
+            critic_loss, actor_loss = self.program.run(batch, noise, self.updates % self.td3.policy_delay == 0)
+            return {"critic_loss": critic_loss, "actor_loss": actor_loss}
         critic_loss = self.critic_loss(batch)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()

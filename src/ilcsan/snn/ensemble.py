@@ -33,21 +33,24 @@ class _EnsembleAffine(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:  # noqa: D102
-        ctx.save_for_backward(flat, weight)
-        ctx.has_bias = bias is not None
+    def forward(flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:  # noqa: D102
         if bias is None:
             return torch.bmm(flat, weight.transpose(1, 2))
         return torch.baddbmm(bias.unsqueeze(1), flat, weight.transpose(1, 2))
 
     @staticmethod
+    def setup_context(ctx, inputs, output) -> None:  # noqa: D102
+        flat, weight, bias = inputs
+        ctx.save_for_backward(flat, weight)
+        ctx.has_bias = bias is not None
+
+    @staticmethod
     def backward(ctx, grad_output: torch.Tensor):  # noqa: D102
+        # Every gradient is computed, needed or not: under torch.compile of torch.func.grad_and_value (torch 2.13)
+        # ctx.needs_input_grad reports wrong flags, and skipping on them silently dropped gradients (tested).
         flat, weight = ctx.saved_tensors
-        needs_input, needs_weight, needs_bias = ctx.needs_input_grad
-        grad_input = torch.bmm(grad_output, weight) if needs_input else None
-        grad_weight = torch.bmm(grad_output.transpose(1, 2), flat) if needs_weight else None
-        grad_bias = grad_output.sum(dim=1) if ctx.has_bias and needs_bias else None
-        return grad_input, grad_weight, grad_bias
+        grad_bias = grad_output.sum(dim=1) if ctx.has_bias else None
+        return torch.bmm(grad_output, weight), torch.bmm(grad_output.transpose(1, 2), flat), grad_bias
 
 
 class EnsembleLinear(nn.Module):

@@ -32,10 +32,14 @@ class _RectangularSpike(torch.autograd.Function):
     """Heaviside forward, rectangular surrogate backward: ∂S/∂x = 1 where |x| < width."""
 
     @staticmethod
-    def forward(ctx, x: torch.Tensor, width: float) -> torch.Tensor:  # noqa: D102
+    def forward(x: torch.Tensor, width: float) -> torch.Tensor:  # noqa: D102
+        return (x >= 0).to(x.dtype)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:  # noqa: D102
+        x, width = inputs
         ctx.save_for_backward(x)
         ctx.width = width
-        return (x >= 0).to(x.dtype)
 
     @staticmethod
     def backward(ctx, grad_output: torch.Tensor):  # noqa: D102
@@ -140,14 +144,17 @@ def _clif_train_backward(grad_spikes: torch.Tensor, charged: torch.Tensor, param
 
 class _CLIFTrain(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, currents: torch.Tensor, params: CLIFParams) -> torch.Tensor:  # noqa: D102
-        spikes, charged = _clif_train_forward(currents, params)
-        ctx.save_for_backward(charged)
-        ctx.params = params
-        return spikes
+    def forward(currents: torch.Tensor, params: CLIFParams) -> tuple[torch.Tensor, torch.Tensor]:  # noqa: D102
+        return _clif_train_forward(currents, params)
 
     @staticmethod
-    def backward(ctx, grad_spikes: torch.Tensor):  # noqa: D102
+    def setup_context(ctx, inputs, output) -> None:  # noqa: D102
+        ctx.save_for_backward(output[1])
+        ctx.params = inputs[1]
+        ctx.mark_non_differentiable(output[1])
+
+    @staticmethod
+    def backward(ctx, grad_spikes: torch.Tensor, grad_charged: torch.Tensor | None):  # noqa: D102
         (charged,) = ctx.saved_tensors
         return _clif_train_backward(grad_spikes, charged, ctx.params), None
 
@@ -159,7 +166,7 @@ def clif_train(currents: torch.Tensor, params: CLIFParams) -> torch.Tensor:
     with the backward pass written out (:func:`_clif_train_backward`) and only H_t saved: about a third
     less time than autograd's generic graph of the step-by-step loop, compiled or not (measured).
     """
-    return _CLIFTrain.apply(currents, params)
+    return _CLIFTrain.apply(currents, params)[0]
 
 
 # ------------------------------------------------------------------------ MDC-SAN dynamic neuron
