@@ -131,7 +131,7 @@ def test_an_interrupted_second_phase_is_completed(tmp_path):
 
 # ------------------------------------------------------------------------------------ evaluation
 def test_lockstep_episodes_are_seeded_first_seed_plus_episode():
-    envs = [gym.make("Pendulum-v1") for _ in range(2)]
+    envs = [gym.make("Pendulum-v1") for _ in range(6)]
     seen = []
     for env in envs:
         original = env.reset
@@ -141,9 +141,50 @@ def test_lockstep_episodes_are_seeded_first_seed_plus_episode():
             return _original(seed=seed, **kwargs)
 
         env.reset = reset
-    returns, lengths = run_lockstep(envs, lambda obs: np.zeros((len(obs), 1)), 3, [100, 200])
-    assert sorted(seen) == [100, 101, 102, 200, 201, 202]
+    returns, lengths = run_lockstep([envs[:3], envs[3:]], lambda obs: np.zeros((*obs.shape[:2], 1)), [100, 200])
+    assert seen == [100, 101, 102, 200, 201, 202]
     assert [len(r) for r in returns] == [3, 3] and lengths == [[200] * 3] * 2
+
+
+@pytest.mark.parametrize("compile_mode", ["off", "on"])
+def test_training_evaluation_runs_every_episode_together_and_equals_them_one_by_one(tmp_path, compile_mode):
+    """K seeds × E episodes in lockstep, one batched actor call per step; each return equals that episode played
+    alone with batch-1 actions (Hopper: chaotic, so any difference in the actions would show)."""
+    from ilcsan.rl.evaluation import episode_seed
+    from ilcsan.rl.tasks import make_env
+
+    config = RunConfig(task="Hopper", seeds=(0, 1), steps=60, eval_every=10**6, eval_episodes=3,
+                       actor=actor_config("ilc-san", hidden=(16, 16)),
+                       td3=TD3Config(start_steps=60, update_after=60, batch_size=16), threads=1, compile=compile_mode)
+    trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)
+    try:
+        for _ in range(config.steps):
+            trainer.train_step()
+        calls = []
+        act = trainer.agent.act
+        trainer.agent.act = lambda states: calls.append(states.shape) or act(states)
+        rows = trainer.evaluate()
+        trainer.agent.act = act
+        assert set(calls) == {(2, 3, 11)}
+        longest = 0
+        for k, seed in enumerate(config.seeds):
+            alone = []
+            for episode in range(3):
+                env = make_env("Hopper")
+                observation = env.reset(seed=episode_seed(training_evaluation_seed(seed, 0), episode))[0]
+                total, done, length = 0.0, False, 0
+                while not done:
+                    action = trainer._act(np.repeat(observation[None], 2, axis=0))[k]
+                    observation, reward, terminated, truncated, _ = env.step(action)
+                    total, done, length = total + reward, terminated or truncated, length + 1
+                env.close()
+                alone.append((total, length))
+            assert rows[k]["eval_return_mean"] == pytest.approx(np.mean([r for r, _ in alone]), rel=1e-9)
+            assert rows[k]["eval_length_mean"] == pytest.approx(np.mean([n for _, n in alone]))
+            longest = max(longest, *(n for _, n in alone))
+        assert len(calls) == longest  # one actor call per step for all seeds and episodes
+    finally:
+        trainer.close()
 
 
 def test_evaluate_with_the_training_seed_replays_the_training_evaluation(trained_run):
@@ -158,6 +199,7 @@ class _Run:
     def __init__(self, step, evaluations):
         self.step, self.evaluations = step, evaluations
         self.config = RunConfig(task="Pendulum-v1", seeds=(0, 1), label="mine")
+        self.agent = type("Agent", (), {"execution": "compiled update + acting"})()
 
 
 def test_the_evaluation_line_names_the_run_returns_and_best(capsys):
@@ -169,7 +211,8 @@ def test_the_evaluation_line_names_the_run_returns_and_best(capsys):
     report.step(run)
     report.evaluated(run, rows, 123.4, {})
     report.close()
-    assert lines == ["[Pendulum-v1 mine] step 400: eval return -10.0 -30.0 · best -15.0 · 123 steps/s"]
+    assert lines == ["[Pendulum-v1 mine] step 400: eval return -10.0 -30.0 · best -15.0 · 123 steps/s "
+                     "(compiled update + acting)"]
     assert best_so_far([[], []]) == "no evaluation yet"
 
 

@@ -303,9 +303,9 @@ class RunConfig:
                                   "time loop of Algorithm 1)", choices=ENGINES)
     threads: int | None = setting(None, "torch threads (default: torch's own; use 1 when several runs share the "
                                         "cores)", minimum=1)
-    compile: str = setting("auto", "torch.compile the spiking actor and the no-grad target values (the trained "
-                                   "critic and DAN run eager, faster); auto: on for runs of 50000 steps or more",
-                           choices=COMPILE_MODES)
+    compile: str = setting("auto", "run each TD3 update as one compiled program (and a spiking actor's acting "
+                                   "pass compiled); auto: on when the run has enough updates to repay the 10-20 s "
+                                   "of compiling (2000 for spiking actors, 10000 for DAN)", choices=COMPILE_MODES)
     matmul: str = setting("float32", "matmul precision; bf16 rounds matmul inputs to bfloat16 with float32 "
                                      "accumulation on AMX/AVX512-BF16 CPUs (TF32/bf16 on CUDA), which pays on large "
                                      "matmuls (Ant, many seeds)", choices=MATMUL_PRECISIONS)

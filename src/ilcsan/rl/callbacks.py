@@ -86,7 +86,8 @@ class ProgressReport:
         config = trainer.config
         returns = " ".join(f"{row['eval_return_mean']:.1f}" for row in rows)
         message = (f"[{config.task} {config.label or config.actor.preset}] step {trainer.step}: eval return "
-                   f"{returns} · best {best_so_far(trainer.evaluations).removeprefix('best ')} · {speed:.0f} steps/s")
+                   f"{returns} · best {best_so_far(trainer.evaluations).removeprefix('best ')} · {speed:.0f} steps/s "
+                   f"({trainer.agent.execution})")
         if self.progress:
             from tqdm import tqdm
 

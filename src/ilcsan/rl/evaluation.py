@@ -1,8 +1,9 @@
 """The paper's evaluation protocol: deterministic episodes of the trained actor (Section IV-A).
 
-One loop, :func:`run_lockstep`, runs every evaluation: the training evaluation (the K seeds of a run in
-lockstep, one environment each) and ``ilcsan evaluate`` (one environment). Episode ``e`` of an environment
-whose first episode has seed ``S`` is reset with :func:`episode_seed` ``(S, e) = S + e``:
+One loop, :func:`run_lockstep`, runs every evaluation: the training evaluation (the E episodes of each of
+the K seeds of a run, K × E environments stepped together, one actor call per step for all) and ``ilcsan
+evaluate``. Episode ``e`` of an evaluation whose first episode has seed ``S`` is reset with
+:func:`episode_seed` ``(S, e) = S + e``:
 
 - ``ilcsan evaluate --seed S`` plays episodes with seeds S, S + 1, ...;
 - the training evaluation number ``i`` (``i = step // eval_every``) of run seed ``k`` starts at
@@ -33,57 +34,49 @@ def training_evaluation_seed(run_seed: int, evaluation: int) -> int:
     return EVAL_SEED_OFFSET + run_seed * 10_007 + evaluation * 101
 
 
-def run_lockstep(envs: Sequence, act: Callable[[np.ndarray], np.ndarray], episodes: int, first_seeds: Sequence[int],
+def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarray], first_seeds: Sequence[int],
                  check: Callable[[int, str, float | np.ndarray], None] | None = None
                  ) -> tuple[list[list[float]], list[list[int]]]:
-    """``episodes`` episodes in each of the K environments ``envs``, stepped together.
+    """One episode in every environment ``envs[k][e]`` (K rows of E), all stepped together.
 
-    ``act`` maps the K current observations (K, N) to K actions (K, M) (an environment that has finished
-    its episodes keeps its last observation, its action is ignored); environment ``k`` resets episode ``e``
-    with ``episode_seed(first_seeds[k], e)``. ``check(k, what, value)`` sees every observation and reward
-    before it is used (to stop on non-finite values). Returns each environment's returns and lengths."""
-    count = len(envs)
-    returns: list[list[float]] = [[] for _ in range(count)]
-    lengths: list[list[int]] = [[] for _ in range(count)]
-    observations = np.zeros((count, *envs[0].observation_space.shape))
-    running = np.ones(count, bool)
-    episode_return, episode_length = np.zeros(count), np.zeros(count, int)
+    ``act`` maps the current observations (K, E, N) to actions (K, E, M): one call per step for every row and
+    episode (an environment whose episode has ended keeps its last observation; its action is ignored).
+    Episode ``e`` of row ``k`` is reset with ``episode_seed(first_seeds[k], e)``, so the results equal the E
+    episodes played one after another. ``check(k, what, value)`` sees every observation and reward before it
+    is used (to stop on non-finite values). Returns each row's returns and lengths, in episode order."""
+    rows, episodes = len(envs), len(envs[0])
+    observations = np.stack([np.stack([env.reset(seed=episode_seed(first_seeds[k], e))[0]
+                                       for e, env in enumerate(row)]) for k, row in enumerate(envs)])
     check = check or (lambda *_: None)
-
-    def reset(index: int) -> None:
-        observations[index] = envs[index].reset(seed=episode_seed(first_seeds[index], len(returns[index])))[0]
-        check(index, "observation", observations[index])
-        episode_return[index], episode_length[index] = 0.0, 0
-
-    for index in range(count):
-        reset(index)
+    for k in range(rows):
+        check(k, "observation", observations[k])
+    returns, lengths = np.zeros((rows, episodes)), np.zeros((rows, episodes), int)
+    running = np.ones((rows, episodes), bool)
     while running.any():
         actions = act(observations)
-        for index in np.flatnonzero(running):
-            observation, reward, terminated, truncated, _ = envs[index].step(actions[index])
-            check(index, "observation", observation)
-            check(index, "reward", reward)
-            observations[index] = observation
-            episode_return[index] += reward
-            episode_length[index] += 1
-            if terminated or truncated:
-                returns[index].append(float(episode_return[index]))
-                lengths[index].append(int(episode_length[index]))
-                if len(returns[index]) >= episodes:
-                    running[index] = False
-                else:
-                    reset(int(index))
-    return returns, lengths
+        for k, e in zip(*np.nonzero(running), strict=True):
+            observation, reward, terminated, truncated, _ = envs[k][e].step(actions[k, e])
+            check(int(k), "observation", observation)
+            check(int(k), "reward", reward)
+            observations[k, e] = observation
+            returns[k, e] += reward
+            lengths[k, e] += 1
+            running[k, e] = not (terminated or truncated)
+    return returns.tolist(), lengths.tolist()
 
 
 def run_episodes(act, task: str, episodes: int, seed: int = 0) -> tuple[list[float], list[int]]:
     """Run ``episodes`` episodes of ``task`` with ``act(observation) -> action``, episode ``e`` seeded
-    ``episode_seed(seed, e)``; returns the returns and lengths."""
-    env = make_env(task)
+    ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths."""
+    envs = [make_env(task) for _ in range(episodes)]
     try:
-        returns, lengths = run_lockstep([env], lambda observations: [act(observations[0].copy())], episodes, [seed])
+        def act_all(observations: np.ndarray) -> np.ndarray:
+            return np.stack([act(observation.copy()) for observation in observations[0]])[None]
+
+        returns, lengths = run_lockstep([envs], act_all, [seed])
     finally:
-        env.close()
+        for env in envs:
+            env.close()
     return returns[0], lengths[0]
 
 

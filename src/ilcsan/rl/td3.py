@@ -28,7 +28,7 @@ from ..config import ActorConfig, TD3Config
 from ..snn.actor import build_actor
 from ..snn.ensemble import EnsembleMLP, seed_generators
 from .proxy import ProxyTarget, build_proxy
-from .update_program import UpdateProgram
+from .update_program import CompiledPerShape, UpdateProgram
 
 CRITIC_SALT = 2
 NOISE_SALT = 3
@@ -113,7 +113,7 @@ class TD3Agent:
         if compile:
             prepare_compilation()
         spiking = actor_config.network == "spiking"
-        self.actor_fn = torch.compile(self.actor, dynamic=False) if compile and spiking else self.actor
+        self.actor_fn = CompiledPerShape(self.actor.forward) if compile and spiking else self.actor
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)
@@ -121,12 +121,20 @@ class TD3Agent:
         self.updates = 0
         self.program = UpdateProgram(self) if compile else None
 
+    @property
+    def execution(self) -> str:
+        """What runs compiled, for progress lines: 'compiled update + acting', 'compiled update' or 'eager'."""
+        if self.program is None:
+            return "eager"
+        return "compiled update + acting" if self.actor_fn is not self.actor else "compiled update"
+
     # ------------------------------------------------------------------------------- acting
     @torch.no_grad()
     def act(self, normalized_state: np.ndarray) -> np.ndarray:
-        """Deterministic actions for one normalised state per seed: (K, N) → (K, M)."""
-        state = torch.as_tensor(normalized_state, device=self.device).unsqueeze(1)
-        return self.actor_fn(state).squeeze(1).cpu().numpy()
+        """Deterministic actions for normalised states: (K, N) → (K, M), or (K, B, N) → (K, B, M)."""
+        if normalized_state.ndim == 2:
+            return self.act(normalized_state[:, None, :])[:, 0]
+        return self.actor_fn(torch.as_tensor(normalized_state, device=self.device)).cpu().numpy()
 
     # ------------------------------------------------------------------------------ learning
     def _standard_noise(self, batch_size: int) -> torch.Tensor:
@@ -154,7 +162,7 @@ class TD3Agent:
 
     def actor_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Σ_k −mean_b Q_1(s, π(s))."""
-        return -self.critic.first(batch["obs"], self.actor_fn(batch["obs"])).mean(dim=-1).sum()
+        return -self.critic.first(batch["obs"], self.actor(batch["obs"])).mean(dim=-1).sum()
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:
         """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps).

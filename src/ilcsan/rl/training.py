@@ -58,7 +58,7 @@ class Trainer:
         self.eval_envs: list = []
         self.environments = TrainingEnvironments(config.task, config.seeds)  # the task builds: now write
         try:
-            self.eval_envs = [make_env(config.task) for _ in config.seeds]
+            self.eval_envs = [[make_env(config.task) for _ in range(config.eval_episodes)] for _ in config.seeds]
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
@@ -135,8 +135,11 @@ class Trainer:
         return np.clip(action + noise * self.config.td3.exploration_noise * scale, low, high)
 
     def _act(self, observations: np.ndarray) -> np.ndarray:
-        """The deterministic actions π(s) of the K seeds for their raw observations (K, N) → (K, M)."""
-        return self.agent.act(self.normalizer.normalize(observations[:, None, :])[:, 0])
+        """The deterministic actions π(s) of the K seeds for their raw observations, (K, N) → (K, M) or
+        (K, E, N) → (K, E, M) (an evaluation's E episodes)."""
+        if observations.ndim == 2:
+            return self._act(observations[:, None, :])[:, 0]
+        return self.agent.act(self.normalizer.normalize(observations))
 
     def _learn(self) -> dict[str, float]:
         """update_every TD3 updates, each on a fresh minibatch per seed; returns the mean losses per seed."""
@@ -164,7 +167,7 @@ class Trainer:
         def check(index: int, what: str, value) -> None:
             check_finite(value, what, seeds[index], step, "evaluation environment")
 
-        returns, lengths = run_lockstep(self.eval_envs, self._act, self.config.eval_episodes, first_seeds, check)
+        returns, lengths = run_lockstep(self.eval_envs, self._act, first_seeds, check)
         return [{"step": self.step, "eval_return_mean": float(np.mean(r)), "eval_return_std": float(np.std(r)),
                  "eval_length_mean": float(np.mean(n))} for r, n in zip(returns, lengths, strict=True)]
 
@@ -192,7 +195,7 @@ class Trainer:
     def close(self) -> None:
         """Close the reporters, environments and locks (safe to call twice)."""
         self.callbacks.close()
-        for env in self.eval_envs:
+        for env in (env for row in self.eval_envs for env in row):
             env.close()
         self.environments.close()
         for lock in self.locks:

@@ -66,20 +66,38 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
         param.sub_(lr * average / (correction1 * denominator))
 
 
-def compile_program(method: Callable) -> Callable:
-    """``torch.compile(fullgraph=True)`` of a bound method, with its own compile cache and no guards.
+def compile_program(function: Callable) -> Callable:
+    """``torch.compile(fullgraph=True)`` of a function or bound method, with its own compile cache and no guards.
 
     Dynamo keeps its compiled graphs on the function's code object and checks guards (module attributes,
     every input tensor's shape and stride) on each call: hundreds of microseconds for a program of ~60
-    tensors. A program is built for one agent whose shapes never change, so the guards are skipped, and the
-    method is rebuilt on a fresh code object so that another agent's program (other shapes, other constants)
-    gets its own graphs instead of this one's.
+    tensors. A program here is built for one agent and one set of input shapes that never change, so the
+    guards are skipped, and the function is rebuilt on a fresh code object so that another program (other
+    shapes, other constants) gets its own graphs instead of this one's.
     """
-    function = method.__func__
-    code = function.__code__.replace(co_name=f"{function.__name__}_{id(method.__self__):x}")
-    own = types.FunctionType(code, function.__globals__, code.co_name, function.__defaults__, function.__closure__)
-    return torch.compile(types.MethodType(own, method.__self__), fullgraph=True, dynamic=False,
+    bound_to = getattr(function, "__self__", None)
+    plain = getattr(function, "__func__", function)
+    code = plain.__code__.replace(co_name=f"{plain.__name__}_{id(function):x}")
+    own = types.FunctionType(code, plain.__globals__, code.co_name, plain.__defaults__, plain.__closure__)
+    own.__kwdefaults__ = plain.__kwdefaults__
+    target = own if bound_to is None else types.MethodType(own, bound_to)
+    return torch.compile(target, fullgraph=True, dynamic=False,
                          options={"guard_filter_fn": torch.compiler.skip_all_guards_unsafe})
+
+
+class CompiledPerShape:
+    """``function(x)`` through one :func:`compile_program` per shape of ``x``: acting (K, 1, N), evaluation
+    (K, E, N) and Proxy Target's regression targets each get their own guard-free program. Call it under
+    ``torch.no_grad()`` only (grad mode is one of the skipped guards)."""
+
+    def __init__(self, function: Callable[[torch.Tensor], torch.Tensor]):
+        self.function, self.programs = function, {}
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        program = self.programs.get(x.shape)
+        if program is None:
+            program = self.programs[x.shape] = compile_program(self.function)
+        return program(x)
 
 
 class UpdateProgram:
@@ -95,6 +113,7 @@ class UpdateProgram:
         self.actor_names = [name for name, _ in agent.actor.named_parameters()]
         self.critic_names = [name for name, _ in agent.critic.named_parameters()]
         self.target_actor_names = [name for name, _ in agent.actor_target.named_parameters()]
+        self._parameters: dict[str, list[nn.Parameter]] | None = None
         self.soft_target_actor = agent.proxy is None  # Proxy Target: π' is the proxy, fitted, not averaged
         self.critic_step = compile_program(self._critic_step) if compile else self._critic_step
         self.delayed_step = compile_program(self._delayed_step) if compile else self._delayed_step
@@ -142,16 +161,18 @@ class UpdateProgram:
 
     # ------------------------------------------------------------------------- the host side
     def tensors(self) -> dict[str, list]:
-        """The agent's tensors the program reads and writes, fetched anew each call (a checkpoint restore
-        replaces the optimizer state tensors)."""
+        """The agent's tensors the program reads and writes. The parameters keep their identity for the agent's
+        life (checkpoints load into them in place); the Adam state is looked up anew on each call, because
+        loading a checkpoint replaces it."""
         agent = self.agent
-        actor = list(agent.actor.parameters())
-        critic = list(agent.critic.parameters())
-        return {"actor": [p.detach() for p in actor], "critic": [p.detach() for p in critic],
-                "actor_target": [p.detach() for p in agent.actor_target.parameters()],
-                "critic_target": [p.detach() for p in agent.critic_target.parameters()],
-                "actor_adam": adam_state(agent.actor_optimizer, actor),
-                "critic_adam": adam_state(agent.critic_optimizer, critic)}
+        if self._parameters is None:
+            self._parameters = {"actor": list(agent.actor.parameters()), "critic": list(agent.critic.parameters()),
+                                "actor_target": list(agent.actor_target.parameters()),
+                                "critic_target": list(agent.critic_target.parameters())}
+        tensors = {key: [p.detach() for p in params] for key, params in self._parameters.items()}
+        tensors["actor_adam"] = adam_state(agent.actor_optimizer, self._parameters["actor"])
+        tensors["critic_adam"] = adam_state(agent.critic_optimizer, self._parameters["critic"])
+        return tensors
 
     def run(self, batch: dict[str, torch.Tensor], noise: torch.Tensor,
             delayed: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
