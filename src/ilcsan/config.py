@@ -306,9 +306,11 @@ class RunConfig:
     compile: str = setting("auto", "run each TD3 update as one compiled program (and a spiking actor's acting "
                                    "pass compiled); auto: on when the run has enough updates to repay the 10-20 s "
                                    "of compiling (2000 for spiking actors, 10000 for DAN)", choices=COMPILE_MODES)
-    matmul: str = setting("float32", "matmul precision; bf16 rounds matmul inputs to bfloat16 with float32 "
-                                     "accumulation on AMX/AVX512-BF16 CPUs (TF32/bf16 on CUDA), which pays on large "
-                                     "matmuls (Ant, many seeds)", choices=MATMUL_PRECISIONS)
+    matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
+                                     "matrix shapes, measured at start (printed, and kept in config.json); bf16: "
+                                     "operands and products rounded to bfloat16 (AVX512-BF16/AMX kernels; TF32/bf16 "
+                                     "on CUDA), about twice the float32 speed on such CPUs",
+                          choices=MATMUL_PRECISIONS)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`

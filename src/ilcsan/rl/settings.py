@@ -9,6 +9,7 @@ import torch
 
 from ..config import MATMUL_PRECISIONS, RunConfig, check_settings
 from ..errors import UserError
+from ..snn.matmul import COMPILABLE_PATHS, fastest_float32_path, layer_products, measure_paths, use_matmul_path
 
 COMPILE_PAYS_AFTER_UPDATES = {"spiking": 2_000, "deep": 10_000}
 """``--compile auto`` compiles a run with at least this many TD3 updates (steps − update_after), by network.
@@ -53,6 +54,45 @@ def _validate_device(name: str) -> None:
 def set_matmul_precision(name: str) -> None:
     """Apply ``--matmul`` to this process (torch's setting is global)."""
     torch.set_float32_matmul_precision(MATMUL_PRECISIONS[name])
+
+
+def run_products(config: RunConfig, state_dim: int, action_dim: int) -> list:
+    """The (a, w) shapes of every product of one update of this run: each actor layer over T·B rows (B rows for
+    DAN and an analog first layer are close enough for timing) and each of the 2K critics' layers over B rows,
+    forward and both backward products."""
+    seeds, batch = len(config.seeds), config.td3.batch_size
+    actor = config.actor
+    rows = batch * (actor.timesteps if actor.network == "spiking" else 1)
+    sizes = actor.layer_sizes(state_dim, action_dim)
+    critic = [state_dim + action_dim, *config.td3.critic_hidden, 1]
+    products = [p for d_in, d_out in zip(sizes[:-1], sizes[1:], strict=True)
+                for p in layer_products(seeds, rows, d_in, d_out)]
+    return products + [p for d_in, d_out in zip(critic[:-1], critic[1:], strict=True)
+                       for p in layer_products(2 * seeds, batch, d_in, d_out)]
+
+
+def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> dict:
+    """Set this process's matmul path for the run (:mod:`ilcsan.snn.matmul`): ``bf16`` when asked, else the
+    faster float32 path on the run's own products, measured now (among the compilable paths when the run is
+    compiled). Returns what was chosen and the measured GFLOP/s, for config.json and the start-up line."""
+    if config.matmul == "bf16" or torch.device(config.device).type != "cpu":
+        path = "bf16" if config.matmul == "bf16" and torch.device(config.device).type == "cpu" else "aten"
+        use_matmul_path(path)
+        return {"path": path, "gflops": {}}
+    speeds = measure_paths(run_products(config, state_dim, action_dim), seconds=0.05)
+    compiled = use_compile(config)
+    path = fastest_float32_path(speeds, compiled)
+    use_matmul_path(path)
+    return {"path": path, "compiled": compiled, "gflops": {name: round(value, 1) for name, value in speeds.items()}}
+
+
+def describe_matmul_choice(choice: dict) -> str:
+    """One line for the start of a run: the path and, when measured, each path's speed on the run's products."""
+    if not choice["gflops"]:
+        return f"matmul: {choice['path']}"
+    speeds = ", ".join(f"{name} {value:.0f}" + (" (eager runs only)" if choice["compiled"] and name not in
+                                                  COMPILABLE_PATHS else "") for name, value in choice["gflops"].items())
+    return f"matmul: {choice['path']} (float32 GFLOP/s on this run's products: {speeds})"
 
 
 def apply_to_process(config: RunConfig) -> None:

@@ -35,7 +35,7 @@ from .memory import check_memory
 from .normalizer import RunningNormalizer
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
-from .settings import apply_to_process, use_compile, validate_run
+from .settings import apply_to_process, choose_matmul_path, describe_matmul_choice, use_compile, validate_run
 from .tasks import make_env
 from .td3 import TD3Agent
 
@@ -62,6 +62,8 @@ class Trainer:
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
+            self.matmul = choose_matmul_path(config, state_dim, action_dim)
+            log(describe_matmul_choice(self.matmul))
             self.agent = TD3Agent(config.actor, config.td3, state_dim, action_dim, self.environments.action_scale,
                                   self.environments.action_offset, config.seeds, config.device,
                                   compile=use_compile(config), engine=config.engine)
@@ -86,7 +88,7 @@ class Trainer:
         """Step 0 of a new run: the first episodes and each seed's config.json."""
         self.environments.start()
         self.normalizer.update(self.environments.observations)
-        self.checkpoints.write_configs(self.config)
+        self.checkpoints.write_configs(self.config, {"matmul_path": self.matmul})
 
     # ----------------------------------------------------------------------------- the loop
     def train(self) -> list[dict[str, Any]]:

@@ -255,10 +255,11 @@ class TrainingCheckpoints:
         self.segments: list[list[str]] = [[] for _ in directories]  # each seed's replay segments, in order
         self.checkpointed_total = 0  # replay inserts already written as segments
 
-    def write_configs(self, config: RunConfig) -> None:
-        """Each seed's config.json (:meth:`RunConfig.for_seed`), when a new run starts."""
+    def write_configs(self, config: RunConfig, measured: dict[str, Any] | None = None) -> None:
+        """Each seed's config.json (:meth:`RunConfig.for_seed`) when a new run starts, with ``measured`` (what
+        the run chose on this machine, e.g. its matmul path) beside the settings."""
         for directory, seed in zip(self.directories, config.seeds, strict=True):
-            directory.write_config(config, seed)
+            directory.write_config(config, seed, measured)
 
     def save(self, trainer: Any) -> None:
         """Segments, metrics, then the checkpoints (committed together), then result.json: a crash anywhere

@@ -135,8 +135,9 @@ class RunDirectory:
         return _read_curve(_read_text(path))
 
     # ----------------------------------------------------------------------------------------- writes
-    def write_config(self, config: RunConfig, seed: int) -> None:
-        atomic_write_json(self.file(CONFIG), config.for_seed(seed))
+    def write_config(self, config: RunConfig, seed: int, measured: dict[str, Any] | None = None) -> None:
+        """config.json: the seed's settings, plus ``measured`` (machine-dependent choices; readers ignore them)."""
+        atomic_write_json(self.file(CONFIG), {**config.for_seed(seed), **(measured or {})})
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         buffer = io.StringIO()

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from .matmul import ensemble_matmul, matmul_path
+
 
 def uniform_(tensor: torch.Tensor, bound: float, generators: Sequence[torch.Generator]) -> None:
     """Fill slice k of ``tensor`` with U(-bound, bound) drawn from ``generators[k]``."""
@@ -24,7 +26,8 @@ def uniform_(tensor: torch.Tensor, bound: float, generators: Sequence[torch.Gene
 
 
 class _EnsembleAffine(torch.autograd.Function):
-    """y_k = x_k W_kᵀ + b_k for every ensemble member k, with the weight gradient built in W's own layout.
+    """y_k = x_k W_kᵀ + b_k for every ensemble member k, with the weight gradient built in W's own layout; all
+    three products run on the process's matmul path (:mod:`ilcsan.snn.matmul`).
 
     Autograd's generic rule for ``baddbmm(b, x, Wᵀ)`` produces ∂L/∂Wᵀ = xᵀ g and hands back its transpose, a
     non-contiguous view that AccumulateGrad then copies into W's layout on every backward pass. Here
@@ -35,8 +38,10 @@ class _EnsembleAffine(torch.autograd.Function):
     @staticmethod
     def forward(flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:  # noqa: D102
         if bias is None:
-            return torch.bmm(flat, weight.transpose(1, 2))
-        return torch.baddbmm(bias.unsqueeze(1), flat, weight.transpose(1, 2))
+            return ensemble_matmul(flat, weight)
+        if matmul_path() == "aten":  # the bias rides in the BLAS call
+            return torch.baddbmm(bias.unsqueeze(1), flat, weight.transpose(1, 2))
+        return ensemble_matmul(flat, weight) + bias.unsqueeze(1)
 
     @staticmethod
     def setup_context(ctx, inputs, output) -> None:  # noqa: D102
@@ -50,7 +55,9 @@ class _EnsembleAffine(torch.autograd.Function):
         # ctx.needs_input_grad reports wrong flags, and skipping on them silently dropped gradients (tested).
         flat, weight = ctx.saved_tensors
         grad_bias = grad_output.sum(dim=1) if ctx.has_bias else None
-        return torch.bmm(grad_output, weight), torch.bmm(grad_output.transpose(1, 2), flat), grad_bias
+        grad_input = ensemble_matmul(grad_output, weight.transpose(1, 2))  # g W
+        grad_weight = ensemble_matmul(grad_output.transpose(1, 2), flat.transpose(1, 2))  # gᵀ x
+        return grad_input, grad_weight, grad_bias
 
 
 class EnsembleLinear(nn.Module):

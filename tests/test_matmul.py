@@ -1,0 +1,126 @@
+"""The matmul paths (:mod:`ilcsan.snn.matmul`): every float32 path computes the same products, gradients and
+TD3 updates; bf16 really rounds; the choice is the measured fastest and is recorded in config.json."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.rl.training import Trainer
+from ilcsan.snn.ensemble import EnsembleLinear, seed_generators
+from ilcsan.snn.matmul import (
+    COMPILABLE_PATHS,
+    FLOAT32_PATHS,
+    ensemble_matmul,
+    fastest_float32_path,
+    layer_products,
+    matmul_path,
+    measure_paths,
+    onednn_available,
+    use_matmul_path,
+)
+
+PATHS = [path for path in FLOAT32_PATHS if path != "onednn" or onednn_available()]
+
+
+@pytest.fixture
+def restore_path():
+    before = matmul_path()
+    yield
+    use_matmul_path(before)
+
+
+@pytest.mark.parametrize("path", [*PATHS, "bf16"])
+def test_every_path_computes_a_times_w_transposed_per_member(path):
+    generator = torch.Generator().manual_seed(3)
+    a, w = torch.randn(3, 37, 20, generator=generator), torch.randn(3, 11, 20, generator=generator)
+    exact = torch.einsum("kri,koi->kro", a.double(), w.double())
+    # the backward products come with transposed views: those must work too
+    for left, right in ((a, w), (a.transpose(1, 2).contiguous().transpose(1, 2), w.transpose(1, 2).contiguous()
+                                 .transpose(1, 2))):
+        result = ensemble_matmul(left, right, path)
+        assert result.dtype == torch.float32 and result.shape == (3, 37, 11)
+        if path == "bf16":  # 8-bit mantissas: about 1 % error, but never exact
+            assert torch.allclose(result.double(), exact, rtol=0.05, atol=0.3)
+            assert not torch.allclose(result.double(), exact, rtol=1e-5, atol=1e-5)
+        else:
+            torch.testing.assert_close(result.double(), exact, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_layer_gradients_agree_on_every_float32_path(path, restore_path):
+    layer = EnsembleLinear(2, 7, 5)
+    layer.reset_parameters(seed_generators([0, 1], 0))
+    x = torch.randn(2, 4, 6, 7, requires_grad=True)
+
+    def grads():
+        layer.zero_grad()
+        x.grad = None
+        (layer(x) ** 2).sum().backward()
+        return x.grad.clone(), layer.weight.grad.clone(), layer.bias.grad.clone()
+
+    use_matmul_path("aten")
+    reference = grads()
+    use_matmul_path(path)
+    for ours, theirs in zip(grads(), reference, strict=True):
+        torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_first_layer_weight_gradient_on_onednn(compiled, restore_path):
+    """oneDNN's gradients equal MKL's eagerly; compiled with torch 2.13 the first layer's weight gradient comes out
+    as zero, which is why compiled runs keep to COMPILABLE_PATHS. If this starts failing for compiled=True, torch
+    has fixed it: add "onednn" to COMPILABLE_PATHS."""
+    if not onednn_available():
+        pytest.skip("this torch has no oneDNN")
+    from torch.func import functional_call, grad_and_value
+
+    from ilcsan.snn.ensemble import EnsembleMLP
+
+    mlp = EnsembleMLP(2, [5, 16, 1])
+    mlp.reset_parameters(seed_generators([1, 2], 0))
+    x = torch.randn(2, 16, 5, generator=torch.Generator().manual_seed(0))
+    params = {name: p.detach() for name, p in mlp.named_parameters()}
+
+    def loss(p):
+        return (functional_call(mlp, p, (x,)) ** 2).sum()
+
+    use_matmul_path("aten")
+    reference, _ = grad_and_value(loss)(params)
+    use_matmul_path("onednn")
+    program = torch.compile(grad_and_value(loss), fullgraph=True) if compiled else grad_and_value(loss)
+    grads, _ = program(params)
+    torch._dynamo.reset()
+    if compiled:
+        assert "onednn" not in COMPILABLE_PATHS
+        assert torch.count_nonzero(grads["layers.0.weight"]) == 0 < torch.count_nonzero(reference["layers.0.weight"])
+    else:
+        torch.testing.assert_close(grads["layers.0.weight"], reference["layers.0.weight"], rtol=1e-5, atol=1e-6)
+
+
+def test_the_fastest_measured_float32_path_is_chosen():
+    assert fastest_float32_path({"aten": 90.0, "onednn": 180.0}) == "onednn"
+    assert fastest_float32_path({"aten": 90.0, "onednn": 80.0, "bf16": 400.0}) == "aten"  # bf16 only when asked
+    assert fastest_float32_path({"aten": 90.0, "onednn": 90.0}) == "aten"
+    assert fastest_float32_path({"aten": 90.0, "onednn": 180.0}, compiled=True) == "aten"
+    speeds = measure_paths(layer_products(1, 64, 32, 32), seconds=0.01)
+    assert set(speeds) == set(PATHS) and all(value > 0 for value in speeds.values())
+
+
+def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
+    lines = []
+    config = RunConfig(task="Pendulum-v1", steps=10, eval_every=10, eval_episodes=1, threads=1,
+                       actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=10))
+    Trainer(config, tmp_path / "run", progress=False, log=lines.append).close()
+    recorded = json.loads((tmp_path / "run" / "config.json").read_text())["matmul_path"]
+    assert recorded["path"] in PATHS and recorded["path"] == matmul_path() and not recorded["compiled"]
+    assert set(recorded["gflops"]) == set(PATHS)
+    assert recorded["path"] == fastest_float32_path(recorded["gflops"])
+    assert [line for line in lines if line.startswith(f"matmul: {recorded['path']} (float32 GFLOP/s")]
+    assert RunConfig.from_dict(json.loads((tmp_path / "run" / "config.json").read_text())).actor == config.actor
+    bf16 = RunConfig(**{**config.__dict__, "matmul": "bf16"})
+    Trainer(bf16, tmp_path / "bf16", progress=False, log=lines.append).close()
+    assert json.loads((tmp_path / "bf16" / "config.json").read_text())["matmul_path"]["path"] == "bf16"
