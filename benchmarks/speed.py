@@ -1,18 +1,19 @@
-"""Training speed, measured side by side in one run: prints one Markdown table (and writes it with --out).
+"""Training speed, measured side by side in one run: prints Markdown tables (and writes them with --out).
 
 What it measures, on this machine, in this order:
-  1. the float32 GEMM peak (2048² matmul) for 1 and for --threads threads: the machine's matmul limit;
-  2. environment steps per second including TD3 updates, for DAN, PopSAN and ILC-SAN on Hopper and Ant,
-     with the reference engine (Algorithm 1's time-step loop, eager, as the authors' code) and the fast
-     engine (layer-major, torch.compile of the spiking actor, fused Adam), in float32 and with bf16 matmuls
-     (``--matmul bf16``: AMX on this CPU), as a fraction of the float32 matmul limit in two ways: of the
-     GEMM peak, and of the step's own matmul-only floor (its recorded matrix products replayed back to back);
-  3. Stable-Baselines3's TD3 (MLP actor 256-256, batch 100, one update per step) when it is installed;
-  4. K seeds trained together in one process vs the same cores running separate single-seed processes;
-  5. batch-1 action latency of ``Policy.predict``.
+  1. the CPU, the float32 GEMM peak (2048² matmul) and each matmul path's GFLOP/s on a run's own products
+     (MKL through aten, oneDNN, bf16), one thread;
+  2. for each task and for 1 and 2 torch threads, environment steps per second including TD3 updates: ILC-SAN
+     with the reference engine (Algorithm 1's time-step loop, eager, about the authors' code), the fast engine
+     eager, the update compiled as one program (float32 on the path the run chooses, and bf16); DAN eager and
+     compiled; Stable-Baselines3's TD3 (MLP 256-256) when installed. Each figure is also given as a ratio to the
+     reference engine and to SB3, and as a fraction of the step's matmul-only floor: its recorded matrix
+     products replayed back to back on the fastest float32 path (bf16 rows: on the bf16 path);
+  3. K seeds trained together in one process against K times the floor of one;
+  4. batch-1 action latency: the training loop's compiled acting pass and ``Policy.predict`` (eager).
 
-Steps/s are measured after a warm-up (compilation happens there), with updates from the start (no
-random-action phase), and without evaluations. Run it on an otherwise idle machine:
+Steps/s are measured after a warm-up (compilation happens there), with updates from the start (no random-action
+phase), and without evaluations. Run it on an otherwise idle machine:
 
     .venv/bin/python benchmarks/speed.py --out benchmarks/RESULTS.md
 """
@@ -20,11 +21,9 @@ random-action phase), and without evaluations. Run it on an otherwise idle machi
 from __future__ import annotations
 
 import argparse
-import json
+import contextlib
 import os
 import platform
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -35,7 +34,7 @@ import torch
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.training import Trainer
 
-TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8)}
+TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8), "HalfCheetah": (17, 6)}
 
 
 def gemm_peak(threads: int, size: int = 2048, seconds: float = 2.0) -> float:
@@ -83,18 +82,19 @@ def td3_step_flops(preset: str, state_dim: int, action_dim: int, td3: TD3Config)
     return update + actor_forward_flops(preset, state_dim, action_dim, 1)
 
 
-def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, matmul: str = "float32",
+def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, path: str = "aten",
                  repeats: int = 50) -> float:
-    """Steps/s if a training step did nothing but its matrix products: the floor no engine can beat.
+    """Steps/s if a training step did nothing but its matrix products, on matmul ``path``: the floor no engine
+    on that path can beat.
 
     Records the operand shapes of every matmul of two TD3 updates (one without and one with the delayed
     actor update) and one action, at the dispatcher (forward and backward), then replays exactly those
-    products back to back.
+    products back to back as ``a @ wᵀ`` per ensemble member on ``path`` (:mod:`ilcsan.snn.matmul`).
     """
     from torch.utils._python_dispatch import TorchDispatchMode
 
-    from ilcsan.rl.settings import set_matmul_precision
     from ilcsan.rl.td3 import TD3Agent
+    from ilcsan.snn.matmul import ensemble_matmul, use_matmul_path
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -103,12 +103,14 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, m
     class RecordMatmuls(TorchDispatchMode):
         def __torch_dispatch__(self, func, types, args=(), kwargs=None):
             if func in matmuls:
-                products.append((func, [torch.randn(arg.shape) for arg in args if isinstance(arg, torch.Tensor)]))
+                a, b = [arg for arg in args if isinstance(arg, torch.Tensor)][-2:]  # (bias,) a, b
+                a, b = (a, b) if a.dim() == 3 else (a.unsqueeze(0), b.unsqueeze(0))
+                products.append((torch.randn(a.shape), torch.randn(b.shape).transpose(1, 2).contiguous()))
             return func(*args, **(kwargs or {}))
 
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(threads)
-    set_matmul_precision(matmul)
+    use_matmul_path("aten")
     k = len(seeds)
     agent = TD3Agent(actor_config(preset), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
                      [0.0] * action_dim, seeds)
@@ -124,8 +126,8 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, m
         agent.act(np.zeros((k, state_dim), dtype=np.float32))
 
     def replay() -> None:
-        for function, operands in products:
-            function(*operands)
+        for a, w in products:
+            ensemble_matmul(a, w, path)
 
     for _ in range(5):
         replay()
@@ -133,8 +135,17 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, m
     for _ in range(repeats):
         replay()
     seconds_per_step = (time.perf_counter() - start) / repeats / 2
-    set_matmul_precision("float32")
     return 1.0 / seconds_per_step
+
+
+def best_float32_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int) -> tuple[float, str]:
+    """The matmul-only floor on the fastest float32 path, and that path."""
+    from ilcsan.snn.matmul import FLOAT32_PATHS, onednn_available
+
+    floors = {path: matmul_floor(task, preset, seeds, threads, path) for path in FLOAT32_PATHS
+              if path != "onednn" or onednn_available()}
+    path = max(floors, key=floors.get)
+    return floors[path], path
 
 
 def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], threads: int, steps: int,
@@ -197,34 +208,87 @@ def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
     return float(np.median(times) * 1e6)
 
 
-def separate_runs_speed(task: str, preset: str, processes: int, steps: int, warmup: int, matmul: str,
-                        seeds_per_process: int = 1) -> float:
-    """Aggregate steps/s of ``processes`` runs at once, one torch thread each, each of ``seeds_per_process``
-    stacked seeds (``ilcsan reproduce`` runs its workers this way)."""
-    job = {"task": task, "preset": preset, "steps": steps, "warmup": warmup, "matmul": matmul,
-           "seeds": seeds_per_process}
-    command = [sys.executable, __file__, "--worker", json.dumps(job)]
-    workers = [subprocess.Popen(command, stdout=subprocess.PIPE, text=True) for _ in range(processes)]
-    speeds = [float(worker.communicate()[0].strip().splitlines()[-1]) for worker in workers]
-    return seeds_per_process * sum(speeds)
+def cpu_model() -> str:
+    """The CPU's model name as /proc/cpuinfo gives it (or what platform knows)."""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
+def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[str, float]:
+    """GFLOP/s of every matmul path on the products of one update of ``preset`` on ``task`` (one thread)."""
+    from ilcsan.rl.settings import run_products
+    from ilcsan.snn.matmul import MATMUL_PATHS, measure_paths
+
+    torch.set_num_threads(1)
+    config = RunConfig(task=task, seeds=seeds, actor=actor_config(preset))
+    return measure_paths(run_products(config, *TASK_SIZES[task]), paths=MATMUL_PATHS, seconds=0.5)
+
+
+def act_latency_us(task: str, calls: int = 3000) -> float:
+    """Median µs of the training loop's batch-1 action (compiled ILC-SAN acting pass), one thread."""
+    from ilcsan.rl.td3 import TD3Agent
+
+    torch.set_num_threads(1)
+    state_dim, action_dim = TASK_SIZES[task]
+    agent = TD3Agent(actor_config("ilc-san"), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
+                     [0.0] * action_dim, (0,), compile=True)
+    state = np.random.default_rng(0).normal(size=(1, state_dim)).astype(np.float32)
+    for _ in range(200):
+        agent.act(state)
+    times = []
+    for _ in range(calls):
+        start = time.perf_counter()
+        agent.act(state)
+        times.append(time.perf_counter() - start)
+    return float(np.median(times) * 1e6)
+
+
+ROWS = (("ILC-SAN, reference engine (Algorithm 1, eager)", "ilc-san", "reference", False, "float32"),
+        ("ILC-SAN, fast engine, eager", "ilc-san", "fast", False, "float32"),
+        ("ILC-SAN, compiled update program, float32", "ilc-san", "fast", True, "float32"),
+        ("ILC-SAN, compiled update program, bf16", "ilc-san", "fast", True, "bf16"),
+        ("DAN, eager", "dan", "fast", False, "float32"),
+        ("DAN, compiled update program, float32", "dan", "fast", True, "float32"))
+"""(label, preset, engine, compiled, matmul) of each measured configuration."""
+
+
+def task_table(task: str, threads: int, steps: int, warmup: int, emit) -> dict[str, float]:
+    """One task's table for ``threads`` threads; returns each row's steps/s by label."""
+    floors = {preset: best_float32_floor(task, preset, (0,), threads) for preset in ("ilc-san", "dan")}
+    bf16_floor = matmul_floor(task, "ilc-san", (0,), threads, "bf16")
+    speeds = {label: training_speed(task, preset, engine, (0,), threads, steps, warmup, compiled, matmul)
+              for label, preset, engine, compiled, matmul in ROWS}
+    sb3 = sb3_speed(task, threads, steps, warmup)
+    reference = speeds[ROWS[0][0]]
+    emit(f"**{task}, {threads} thread{'s' if threads > 1 else ''}** — float32 matmul-only floor: ILC-SAN "
+         f"{floors['ilc-san'][0]:.0f} steps/s ({floors['ilc-san'][1]}), DAN {floors['dan'][0]:.0f} "
+         f"({floors['dan'][1]}); ILC-SAN bf16 floor {bf16_floor:.0f}.")
+    emit()
+    emit("| configuration | steps/s | × reference engine | × SB3 | % of its floor |")
+    emit("|---|---|---|---|---|")
+    for label, preset, _, _, matmul in ROWS:
+        speed = speeds[label]
+        floor = bf16_floor if matmul == "bf16" else floors[preset][0]
+        versus_sb3 = f"{speed / sb3:.2f}×" if sb3 else "–"
+        emit(f"| {label} | {speed:.0f} | {speed / reference:.2f}× | {versus_sb3} | {100 * speed / floor:.0f}% |")
+    if sb3:
+        emit(f"| Stable-Baselines3 TD3 (MLP 256-256, float32) | {sb3:.0f} | {sb3 / reference:.2f}× | 1.00× | – |")
+    emit()
+    return speeds
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--threads", type=int, default=os.cpu_count() or 2, help="torch threads of one run")
-    parser.add_argument("--steps", type=int, default=1500, help="measured steps per configuration")
-    parser.add_argument("--warmup", type=int, default=400, help="warm-up steps (compilation happens here)")
+    parser.add_argument("--threads", default="1,2", help="torch threads of one run, comma-separated")
+    parser.add_argument("--steps", type=int, default=1000, help="measured steps per configuration")
+    parser.add_argument("--warmup", type=int, default=300, help="warm-up steps (compilation happens here)")
     parser.add_argument("--seeds", type=int, default=10, help="K for the many-seeds measurement")
-    parser.add_argument("--tasks", default="Hopper,Ant")
-    parser.add_argument("--presets", default="dan,popsan,ilc-san")
-    parser.add_argument("--out", help="also write the table to this Markdown file")
-    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--tasks", default="Hopper,Ant,HalfCheetah")
+    parser.add_argument("--out", help="also write the tables to this Markdown file")
     args = parser.parse_args()
-    if args.worker:
-        job = json.loads(args.worker)
-        print(training_speed(job["task"], job["preset"], "fast", tuple(range(job["seeds"])), 1, job["steps"],
-                             job["warmup"], matmul=job["matmul"]))
-        return
 
     lines = []
 
@@ -232,60 +296,26 @@ def main() -> None:
         print(text, flush=True)
         lines.append(text)
 
-    peak_1, peak_n = gemm_peak(1), gemm_peak(args.threads)
-    td3 = TD3Config()
-    emit(f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
-         f"{args.threads} threads per run; float32 GEMM peak {peak_1:.0f} GFLOP/s (1 thread), "
-         f"{peak_n:.0f} GFLOP/s ({args.threads} threads).")
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    paths = path_speeds("Hopper", "ilc-san")
+    emit(f"Machine: {cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; float32 GEMM peak "
+         f"{gemm_peak(1):.0f} GFLOP/s (1 thread, 2048²). Matmul paths on one ILC-SAN Hopper update's own products "
+         "(1 thread, GFLOP/s): " + ", ".join(f"{name} {value:.0f}" for name, value in paths.items()) + ".")
     emit()
-    emit("| task | actor | reference engine, eager (steps/s) | fast engine, eager | fast engine, compiled | "
-         "compiled / reference | compiled, bf16 matmuls | bf16 / reference | matmul-only floor (float32) | "
-         "compiled as % of floor | GFLOP per step | compiled as % of GEMM peak |")
-    emit("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    fast_speeds, bf16_speeds = {}, {}
     for task in args.tasks.split(","):
-        state_dim, action_dim = TASK_SIZES[task]
-        for preset in args.presets.split(","):
-            reference = training_speed(task, preset, "reference", (0,), args.threads, args.steps, args.warmup)
-            eager = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup, compiled=False)
-            fast = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup)
-            bf16 = training_speed(task, preset, "fast", (0,), args.threads, args.steps, args.warmup, matmul="bf16")
-            fast_speeds[(task, preset)], bf16_speeds[(task, preset)] = fast, bf16
-            floor = matmul_floor(task, preset, (0,), args.threads)
-            flops = td3_step_flops(preset, state_dim, action_dim, td3)
-            limit = peak_n * 1e9 / flops
-            emit(f"| {task} | {preset} | {reference:.0f} | {eager:.0f} | {fast:.0f} | {fast / reference:.2f}× | "
-                 f"{bf16:.0f} | {bf16 / reference:.2f}× | {floor:.0f} | {100 * fast / floor:.0f}% | "
-                 f"{flops / 1e9:.3f} | {100 * fast / limit:.0f}% of {limit:.0f} |")
-    emit()
-    sb3 = sb3_speed("Hopper", args.threads, args.steps, args.warmup)
-    if sb3 is None:
-        emit("Stable-Baselines3 is not installed (pip install stable-baselines3): no comparison.")
-    else:
-        ilc, ilc_bf16 = fast_speeds.get(("Hopper", "ilc-san")), bf16_speeds.get(("Hopper", "ilc-san"))
-        emit(f"Stable-Baselines3 TD3 (MLP 256-256, float32) on Hopper: {sb3:.0f} steps/s; ILC-SAN fast engine: "
-             f"{ilc:.0f} steps/s = {ilc / sb3:.2f}× SB3, with bf16 matmuls {ilc_bf16:.0f} steps/s = "
-             f"{ilc_bf16 / sb3:.2f}× SB3 (SB3 trains an MLP actor, ours a spiking one).")
-    emit()
+        for threads in (int(value) for value in args.threads.split(",")):
+            task_table(task, threads, args.steps, args.warmup, emit)
     k = args.seeds
-    cores = os.cpu_count() or 2
-    for matmul in ("float32", "bf16"):
-        together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), args.threads, args.steps // 2,
-                                      args.warmup, matmul=matmul)
-        separate = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup, matmul)
-        split = separate_runs_speed("Hopper", "ilc-san", cores, args.steps // 2, args.warmup, matmul,
-                                    seeds_per_process=k // cores)
-        floor = k * matmul_floor("Hopper", "ilc-san", tuple(range(k)), args.threads, matmul)
-        emit(f"Many seeds, ILC-SAN on Hopper, {matmul} matmuls: {k} seeds in one process {together:.0f} steps/s "
-             f"in aggregate ({100 * together / floor:.0f}% of its matmul-only floor, {floor:.0f}); {cores} separate "
-             f"single-seed processes (1 thread each) {separate:.0f} steps/s in aggregate: "
-             f"{together / separate:.2f}× faster together; {cores} processes of {k // cores} stacked seeds "
-             f"(1 thread each, as `ilcsan reproduce` runs) {split:.0f} steps/s: {split / separate:.2f}×.")
-        emit()
+    together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), 1, args.steps // 2, args.warmup)
+    floor = k * best_float32_floor("Hopper", "ilc-san", tuple(range(k)), 1)[0]
+    emit(f"Many seeds, ILC-SAN on Hopper, float32, compiled, 1 thread: {k} seeds in one process {together:.0f} "
+         f"steps/s in aggregate, {100 * together / floor:.0f}% of their matmul-only floor ({floor:.0f}).")
     emit()
     for task in args.tasks.split(","):
-        emit(f"Batch-1 action latency, Policy.predict, ILC-SAN on {task} (PyTorch eager, 1 thread): "
-             f"{predict_latency_us('ilc-san', task):.0f} µs (median).")
+        emit(f"Batch-1 action latency, ILC-SAN on {task}, 1 thread (median): training loop's compiled acting pass "
+             f"{act_latency_us(task):.0f} µs; Policy.predict (eager) {predict_latency_us('ilc-san', task):.0f} µs.")
+    emit()
+    emit(f"Measured from {started} to {time.strftime('%H:%M UTC', time.gmtime())}.")
     if args.out:
         Path(args.out).write_text("# Speed benchmark\n\n" + "\n".join(lines) + "\n")
 
