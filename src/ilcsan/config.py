@@ -304,8 +304,8 @@ class RunConfig:
     threads: int | None = setting(None, "torch threads (default: torch's own; use 1 when several runs share the "
                                         "cores)", minimum=1)
     compile: str = setting("auto", "run each TD3 update as one compiled program (and a spiking actor's acting "
-                                   "pass compiled); auto: on when the run has enough updates to repay the 10-20 s "
-                                   "of compiling (2000 for spiking actors, 10000 for DAN)", choices=COMPILE_MODES)
+                                   "pass compiled); auto: on when the run has enough updates to repay the 10-50 s "
+                                   "of compiling (4000 for spiking actors, 25000 for DAN)", choices=COMPILE_MODES)
     matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
                                      "matrix shapes, measured at start (printed, and kept in config.json); bf16: "
                                      "operands and products rounded to bfloat16 (AVX512-BF16/AMX kernels; TF32/bf16 "

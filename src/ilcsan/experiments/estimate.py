@@ -9,13 +9,14 @@ from collections.abc import Iterable
 from ..errors import UserError
 from .tables import TABLES, RowSpec, TableSpec
 
-DEFAULT_STEPS_PER_SECOND = 110.0
+DEFAULT_STEPS_PER_SECOND = 130.0
 """Environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations
 included: the speed :func:`estimate_hours` and ``reproduce --list`` assume unless ``ILCSAN_STEPS_PER_SECOND``
-gives the user's own measurement. Measured on a 2-core x86-64 machine after the 1 000 random steps: 125
-training steps per CPU second with ``torch.compile`` (on by default for runs of 50 000 steps or more; 75
-without) and 0.97 ms per evaluation step. The protocol's evaluations (10 episodes every 10 000 steps) add at
-most one evaluation step per training step, so 1 / (1/125 + 0.00097) ≈ 111 steps/s."""
+gives the user's own measurement. ``benchmarks/speed.py`` on a 2-core AMD EPYC (2026-11-30, benchmarks/RESULTS.md):
+133 training steps/s with the update compiled as one program (float32; the default for runs of more than 4 000
+updates), 49 with the reference engine. The protocol's evaluations (10 episodes every 10 000 steps) run all
+episodes in lockstep, about one batched action and ten environment steps per evaluation step, which costs
+about 1 % of the training time."""
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 EXAMPLE_CLUSTER_CORES = 64

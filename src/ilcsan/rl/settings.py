@@ -11,12 +11,13 @@ from ..config import MATMUL_PRECISIONS, RunConfig, check_settings
 from ..errors import UserError
 from ..snn.matmul import COMPILABLE_PATHS, fastest_float32_path, layer_products, measure_paths, use_matmul_path
 
-COMPILE_PAYS_AFTER_UPDATES = {"spiking": 2_000, "deep": 10_000}
+COMPILE_PAYS_AFTER_UPDATES = {"spiking": 4_000, "deep": 25_000}
 """``--compile auto`` compiles a run with at least this many TD3 updates (steps − update_after), by network.
 
-Measured on a 2-core AMD EPYC (Hopper, one thread): compiling the update program takes 10-20 s; it then saves
-about 12 ms per ILC-SAN update (eager 18.5 → 6.5 ms per step) and about 2 ms per DAN update (5.5 → 3.6 ms),
-so compiling repays itself after ~1 300 and ~9 000 updates."""
+Measured on a 2-core AMD EPYC (Hopper, one thread): compiling the update program and the acting pass takes
+about 50 s the first time and 10-15 s once inductor's cache holds them; it then saves about 12 ms per ILC-SAN
+update (eager 18.5 → 6.5 ms per step) and about 2 ms per DAN update (5.5 → 3.6 ms), so even a first compilation
+repays itself after ~4 000 and ~25 000 updates."""
 
 
 def validate_run(config: RunConfig) -> None:

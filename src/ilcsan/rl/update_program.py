@@ -66,6 +66,12 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
         param.sub_(lr * average / (correction1 * denominator))
 
 
+PROGRAM_OPTIONS = {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe, "cpp_wrapper": True}
+"""No guards (see :func:`compile_program`) and inductor's C++ wrapper, which calls the kernels from C++ instead of
+a Python function: measured on Hopper (one thread), batch-1 acting 103 → 81 µs and an ILC-SAN update 6.16 → 5.88
+ms, for ~10 s more of first compilation."""
+
+
 def compile_program(function: Callable) -> Callable:
     """``torch.compile(fullgraph=True)`` of a function or bound method, with its own compile cache and no guards.
 
@@ -81,8 +87,7 @@ def compile_program(function: Callable) -> Callable:
     own = types.FunctionType(code, plain.__globals__, code.co_name, plain.__defaults__, plain.__closure__)
     own.__kwdefaults__ = plain.__kwdefaults__
     target = own if bound_to is None else types.MethodType(own, bound_to)
-    return torch.compile(target, fullgraph=True, dynamic=False,
-                         options={"guard_filter_fn": torch.compiler.skip_all_guards_unsafe})
+    return torch.compile(target, fullgraph=True, dynamic=False, options=PROGRAM_OPTIONS)
 
 
 class CompiledPerShape:
@@ -94,9 +99,11 @@ class CompiledPerShape:
         self.function, self.programs = function, {}
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        program = self.programs.get(x.shape)
+        x = x.contiguous()  # a program assumes the layout it was compiled for: no guard checks it
+        key = (x.shape, x.dtype)
+        program = self.programs.get(key)
         if program is None:
-            program = self.programs[x.shape] = compile_program(self.function)
+            program = self.programs[key] = compile_program(self.function)
         return program(x)
 
 
@@ -178,6 +185,7 @@ class UpdateProgram:
             delayed: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
         """One update in place; returns (critic loss, actor loss or None) as 0-dim tensors."""
         tensors = self.tensors()
+        batch = {name: value.contiguous() for name, value in batch.items()}  # the layout the program was built for
         with torch.no_grad():  # grad_and_value makes its own gradients; nothing outside is recorded
             if delayed:
                 critic_loss, actor_loss = self.delayed_step(tensors, batch, noise)
