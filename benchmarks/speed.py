@@ -198,12 +198,17 @@ def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
     policy = Policy(actor, config, task, np.zeros(state_dim), np.ones(state_dim), 3.0, np.ones(action_dim),
                     np.zeros(action_dim), {})
     observation = np.random.default_rng(0).normal(size=state_dim)
-    for _ in range(100):
-        policy.predict(observation)
+    return median_call_us(lambda: policy.predict(observation), calls)
+
+
+def median_call_us(function, calls: int, warmup: int = 200) -> float:
+    """Median µs of one call of ``function`` over ``calls`` timed calls, after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        function()
     times = []
     for _ in range(calls):
         start = time.perf_counter()
-        policy.predict(observation)
+        function()
         times.append(time.perf_counter() - start)
     return float(np.median(times) * 1e6)
 
@@ -236,14 +241,7 @@ def act_latency_us(task: str, calls: int = 3000) -> float:
     agent = TD3Agent(actor_config("ilc-san"), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
                      [0.0] * action_dim, (0,), compile=True)
     state = np.random.default_rng(0).normal(size=(1, state_dim)).astype(np.float32)
-    for _ in range(200):
-        agent.act(state)
-    times = []
-    for _ in range(calls):
-        start = time.perf_counter()
-        agent.act(state)
-        times.append(time.perf_counter() - start)
-    return float(np.median(times) * 1e6)
+    return median_call_us(lambda: agent.act(state), calls)
 
 
 ROWS = (("ILC-SAN, reference engine (Algorithm 1, eager)", "ilc-san", "reference", False, "float32"),
