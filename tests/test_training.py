@@ -200,3 +200,20 @@ def test_run_directory_contents(tmp_path):
     assert list(read_metrics(tmp_path / "run" / "metrics.csv")[0]) == [
         "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second"]
     assert list((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard events are written"
+
+
+def test_compiled_acting_calls_inductor_directly_and_sees_weights_changed_in_place():
+    """The acting program resolves every input of the compiled graph (so it runs without dynamo's frame entry)
+    and, holding the parameters themselves, acts with weights changed in place as the eager actor does."""
+    config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
+    agent = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(0, 1), compile=True)
+    state = np.random.default_rng(0).normal(size=(2, 3)).astype(np.float32)
+    before = agent.act(state)
+    (program,) = agent.actor_fn.programs.values()
+    assert program.arguments is not None
+    with torch.no_grad():
+        for layer in agent.actor.layers:
+            layer.weight.mul_(-1.5)
+        eager = agent.actor(torch.as_tensor(state)[:, None, :])[:, 0].numpy()
+    assert not np.allclose(before, eager, atol=1e-3)
+    np.testing.assert_allclose(agent.act(state), eager, atol=1e-5)

@@ -113,7 +113,7 @@ class TD3Agent:
         if compile:
             prepare_compilation()
         spiking = actor_config.network == "spiking"
-        self.actor_fn = CompiledPerShape(self.actor.forward) if compile and spiking else self.actor
+        self.actor_fn = CompiledPerShape(self.actor) if compile and spiking else self.actor
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)

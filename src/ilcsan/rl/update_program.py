@@ -19,6 +19,7 @@ generators, and passed in (the same random stream as the eager update).
 
 from __future__ import annotations
 
+import inspect
 import types
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
@@ -68,8 +69,8 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
 
 PROGRAM_OPTIONS = {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe, "cpp_wrapper": True}
 """No guards (see :func:`compile_program`) and inductor's C++ wrapper, which calls the kernels from C++ instead of
-a Python function: measured on Hopper (one thread), batch-1 acting 103 → 81 µs and an ILC-SAN update 6.16 → 5.88
-ms, for ~10 s more of first compilation."""
+a Python function: measured on Hopper (one thread), an ILC-SAN update 6.16 → 5.88 ms and a batch-1 action
+103 → 81 µs, for ~10 s more of first compilation."""
 
 
 def compile_program(function: Callable) -> Callable:
@@ -90,20 +91,68 @@ def compile_program(function: Callable) -> Callable:
     return torch.compile(target, fullgraph=True, dynamic=False, options=PROGRAM_OPTIONS)
 
 
-class CompiledPerShape:
-    """``function(x)`` through one :func:`compile_program` per shape of ``x``: acting (K, 1, N), evaluation
-    (K, E, N) and Proxy Target's regression targets each get their own guard-free program. Call it under
-    ``torch.no_grad()`` only (grad mode is one of the skipped guards)."""
+class ForwardProgram:
+    """A module's forward pass for one input shape: traced once by dynamo, compiled by inductor, then called
+    directly, without dynamo.
 
-    def __init__(self, function: Callable[[torch.Tensor], torch.Tensor]):
-        self.function, self.programs = function, {}
+    Entering a dynamo-compiled function costs ~30-60 µs even without guards: most of a ~100 µs batch-1 action.
+    The compiled callable's inputs are the traced graph's placeholders — the input and the module's parameters
+    and buffers, named after their paths (``l_self_modules_layers_modules_0_parameters_weight_``) — so the
+    program collects those tensors once (parameters are updated in place for the agent's life) and afterwards
+    calls inductor's code with them and the new input. If a placeholder is not one of them, every call keeps
+    going through dynamo. Call it under ``torch.no_grad()`` only.
+    """
+
+    def __init__(self, module: nn.Module):
+        self.module, self.compiled, self.arguments = module, None, None
+        self.input_name = "l_" + next(iter(inspect.signature(module.forward).parameters)) + "_"
+        forward = module.forward
+        plain = forward.__func__
+        code = plain.__code__.replace(co_name=f"{plain.__name__}_{id(self):x}")  # its own dynamo cache
+        own = types.MethodType(types.FunctionType(code, plain.__globals__, code.co_name, plain.__defaults__,
+                                                  plain.__closure__), module)
+        self.traced = torch.compile(own, fullgraph=True, dynamic=False, backend=self._compile)
+
+    def _compile(self, graph: torch.fx.GraphModule, example_inputs: list) -> Callable:
+        from torch._inductor.compile_fx import compile_fx
+
+        self.compiled = compile_fx(graph, example_inputs, config_patches={"cpp_wrapper": True})
+        tensors = {f"l_self_{_mangled(name, 'parameters')}": p for name, p in self.module.named_parameters()}
+        tensors.update({f"l_self_{_mangled(name, 'buffers')}": b for name, b in self.module.named_buffers()})
+        names = [node.name for node in graph.graph.nodes if node.op == "placeholder"]
+        if names.count(self.input_name) == 1 and all(name in tensors or name == self.input_name for name in names):
+            self.input_index = names.index(self.input_name)
+            self.arguments = [tensors.get(name) for name in names]
+        return self.compiled
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        if self.arguments is None:
+            return self.traced(x)
+        arguments = list(self.arguments)
+        arguments[self.input_index] = x
+        return self.compiled(*arguments)[0]
+
+
+def _mangled(name: str, kind: str) -> str:
+    """dynamo's placeholder name of a module's parameter or buffer ``a.b.c``: ``modules_a_modules_b_<kind>_c_``."""
+    *modules, leaf = name.split(".")
+    return "".join(f"modules_{module}_" for module in modules) + f"{kind}_{leaf}_"
+
+
+class CompiledPerShape:
+    """A module's forward through one :class:`ForwardProgram` per shape and dtype of its input: acting (K, 1, N),
+    evaluation (K, E, N) and Proxy Target's regression targets each get their own program. Call it under
+    ``torch.no_grad()`` only."""
+
+    def __init__(self, module: nn.Module):
+        self.module, self.programs = module, {}
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         x = x.contiguous()  # a program assumes the layout it was compiled for: no guard checks it
         key = (x.shape, x.dtype)
         program = self.programs.get(key)
         if program is None:
-            program = self.programs[key] = compile_program(self.function)
+            program = self.programs[key] = ForwardProgram(self.module)
         return program(x)
 
 
