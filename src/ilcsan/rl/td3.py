@@ -18,7 +18,7 @@ before every update instead of the soft-updated copy of π.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -143,26 +143,37 @@ class TD3Agent:
         return torch.stack([torch.randn(shape, generator=g, device=self.device) for g in self.noise_generators])
 
     def target_values(self, next_obs: torch.Tensor, standard_noise: torch.Tensor, reward: torch.Tensor,
-                      terminal: torch.Tensor) -> torch.Tensor:
-        """y = r + γ (1 − terminal) min_j Q'_j(s', clip(π'(s') + clip(σ̃ ε, −c, c), low, high)), shape (K, B)."""
+                      terminal: torch.Tensor, target_actor: Callable | None = None,
+                      target_critic: Callable | None = None) -> torch.Tensor:
+        """y = r + γ (1 − terminal) min_j Q'_j(s', clip(π'(s') + clip(σ̃ ε, −c, c), low, high)), shape (K, B).
+
+        ``target_actor``/``target_critic`` replace π' and Q' (the update program passes them as functions of its
+        parameter tensors); by default they are the agent's target modules."""
+        target_actor = target_actor or self.actor_target
+        target_critic = target_critic or self.critic_target
         clip = self.td3.noise_clip
         noise = (standard_noise * self.td3.target_noise).clamp(-clip, clip) * self.scale
-        next_action = self.actor_target(next_obs) + noise
+        next_action = target_actor(next_obs) + noise
         next_action = torch.maximum(torch.minimum(next_action, self.offset + self.scale), self.offset - self.scale)
-        target_q = self.critic_target(next_obs, next_action).min(dim=1).values
+        target_q = target_critic(next_obs, next_action).min(dim=1).values
         return reward + self.td3.gamma * (1.0 - terminal) * target_q
 
-    def critic_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Σ_k Σ_j mean_b (Q_j(s, a) − y)², with y from the target actor and the min of the target twins."""
-        with torch.no_grad():
-            noise = self._standard_noise(batch["next_obs"].shape[1])
-            target = self.target_values(batch["next_obs"], noise, batch["reward"], batch["terminal"])
-        q_values = self.critic(batch["obs"], batch["action"])
+    def critic_loss(self, batch: dict[str, torch.Tensor], target: torch.Tensor | None = None,
+                    critic: Callable | None = None) -> torch.Tensor:
+        """Σ_k Σ_j mean_b (Q_j(s, a) − y)², with y from the target actor and the min of the target twins (drawn
+        here unless ``target`` is given); ``critic`` replaces the critic module."""
+        if target is None:
+            with torch.no_grad():
+                noise = self._standard_noise(batch["next_obs"].shape[1])
+                target = self.target_values(batch["next_obs"], noise, batch["reward"], batch["terminal"])
+        q_values = (critic or self.critic)(batch["obs"], batch["action"])
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
-    def actor_loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Σ_k −mean_b Q_1(s, π(s))."""
-        return -self.critic.first(batch["obs"], self.actor(batch["obs"])).mean(dim=-1).sum()
+    def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
+                   critic: Callable | None = None) -> torch.Tensor:
+        """Σ_k −mean_b Q_1(s, π(s)); ``actor`` and ``critic`` (called with ``first_only=True``) replace the modules."""
+        action = (actor or self.actor)(batch["obs"])
+        return -(critic or self.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:
         """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps).

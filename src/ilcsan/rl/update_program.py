@@ -82,13 +82,17 @@ def compile_program(function: Callable) -> Callable:
     guards are skipped, and the function is rebuilt on a fresh code object so that another program (other
     shapes, other constants) gets its own graphs instead of this one's.
     """
+    return torch.compile(with_own_code(function), fullgraph=True, dynamic=False, options=PROGRAM_OPTIONS)
+
+
+def with_own_code(function: Callable) -> Callable:
+    """The same function or bound method on a fresh code object, so that dynamo keeps a separate cache for it."""
     bound_to = getattr(function, "__self__", None)
     plain = getattr(function, "__func__", function)
     code = plain.__code__.replace(co_name=f"{plain.__name__}_{id(function):x}")
     own = types.FunctionType(code, plain.__globals__, code.co_name, plain.__defaults__, plain.__closure__)
     own.__kwdefaults__ = plain.__kwdefaults__
-    target = own if bound_to is None else types.MethodType(own, bound_to)
-    return torch.compile(target, fullgraph=True, dynamic=False, options=PROGRAM_OPTIONS)
+    return own if bound_to is None else types.MethodType(own, bound_to)
 
 
 class ForwardProgram:
@@ -106,12 +110,8 @@ class ForwardProgram:
     def __init__(self, module: nn.Module):
         self.module, self.compiled, self.arguments = module, None, None
         self.input_name = "l_" + next(iter(inspect.signature(module.forward).parameters)) + "_"
-        forward = module.forward
-        plain = forward.__func__
-        code = plain.__code__.replace(co_name=f"{plain.__name__}_{id(self):x}")  # its own dynamo cache
-        own = types.MethodType(types.FunctionType(code, plain.__globals__, code.co_name, plain.__defaults__,
-                                                  plain.__closure__), module)
-        self.traced = torch.compile(own, fullgraph=True, dynamic=False, backend=self._compile)
+        self.traced = torch.compile(with_own_code(module.forward), fullgraph=True, dynamic=False,
+                                    backend=self._compile)
 
     def _compile(self, graph: torch.fx.GraphModule, example_inputs: list) -> Callable:
         from torch._inductor.compile_fx import compile_fx
@@ -175,40 +175,34 @@ class UpdateProgram:
         self.delayed_step = compile_program(self._delayed_step) if compile else self._delayed_step
 
     # ----------------------------------------------------------------------- the pure program
-    def _target_values(self, target_actor: dict, target_critic: dict, batch: dict, noise: torch.Tensor):
-        agent, td3 = self.agent, self.agent.td3
-        smoothing = (noise * td3.target_noise).clamp(-td3.noise_clip, td3.noise_clip) * agent.scale
-        next_action = functional_call(agent.actor_target, target_actor, (batch["next_obs"],)) + smoothing
-        next_action = torch.maximum(torch.minimum(next_action, agent.offset + agent.scale), agent.offset - agent.scale)
-        target_q = functional_call(agent.critic_target, target_critic, (batch["next_obs"], next_action))
-        return batch["reward"] + td3.gamma * (1.0 - batch["terminal"]) * target_q.min(dim=1).values
+    def _module(self, module: nn.Module, tensors: list[torch.Tensor], names: list[str]) -> Callable:
+        """``module`` as a function of ``tensors`` (its parameters, in ``names`` order)."""
+        parameters = dict(zip(names, tensors, strict=True))
+        return lambda *args, **kwargs: functional_call(module, parameters, args, kwargs)
 
-    def _critic_loss(self, critic: dict, batch: dict, target: torch.Tensor) -> torch.Tensor:
-        q_values = functional_call(self.agent.critic, critic, (batch["obs"], batch["action"]))
-        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
+    def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
+        return self.agent.critic_loss(batch, target, self._module(self.agent.critic, critic, self.critic_names))
 
-    def _actor_loss(self, actor: dict, critic: dict, batch: dict) -> torch.Tensor:
-        action = functional_call(self.agent.actor, actor, (batch["obs"],))
-        return -functional_call(self.agent.critic, critic, (batch["obs"], action), {"first_only": True}).mean(-1).sum()
+    def _actor_loss(self, actor: list, critic: list, batch: dict) -> torch.Tensor:
+        agent = self.agent
+        return agent.actor_loss(batch, self._module(agent.actor, actor, self.actor_names),
+                                self._module(agent.critic, critic, self.critic_names))
 
     def _critic_step(self, tensors: dict, batch: dict, noise: torch.Tensor) -> torch.Tensor:
-        critic = dict(zip(self.critic_names, tensors["critic"], strict=True))
+        agent = self.agent
         with torch.no_grad():
-            target = self._target_values(dict(zip(self.target_actor_names, tensors["actor_target"], strict=True)),
-                                         dict(zip(self.critic_names, tensors["critic_target"], strict=True)),
-                                         batch, noise)
-        grads, loss = grad_and_value(self._critic_loss)(critic, batch, target)
-        adam_(tensors["critic"], [grads[name] for name in self.critic_names], *tensors["critic_adam"],
-              lr=self.agent.td3.critic_lr)
+            target = agent.target_values(
+                batch["next_obs"], noise, batch["reward"], batch["terminal"],
+                self._module(agent.actor_target, tensors["actor_target"], self.target_actor_names),
+                self._module(agent.critic_target, tensors["critic_target"], self.critic_names))
+        grads, loss = grad_and_value(self._critic_loss)(tensors["critic"], batch, target)
+        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=agent.td3.critic_lr)
         return loss
 
     def _delayed_step(self, tensors: dict, batch: dict, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         critic_loss = self._critic_step(tensors, batch, noise)
-        actor = dict(zip(self.actor_names, tensors["actor"], strict=True))
-        critic = dict(zip(self.critic_names, tensors["critic"], strict=True))
-        grads, actor_loss = grad_and_value(self._actor_loss)(actor, critic, batch)
-        adam_(tensors["actor"], [grads[name] for name in self.actor_names], *tensors["actor_adam"],
-              lr=self.agent.config.learning_rate)
+        grads, actor_loss = grad_and_value(self._actor_loss)(tensors["actor"], tensors["critic"], batch)
+        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=self.agent.config.learning_rate)
         tau = self.agent.td3.tau
         if self.soft_target_actor:
             torch._foreach_lerp_(tensors["actor_target"], tensors["actor"], tau)
@@ -218,17 +212,16 @@ class UpdateProgram:
     # ------------------------------------------------------------------------- the host side
     def tensors(self) -> dict[str, list]:
         """The agent's tensors the program reads and writes. The parameters keep their identity for the agent's
-        life (checkpoints load into them in place); the Adam state is looked up anew on each call, because
-        loading a checkpoint replaces it."""
+        life (checkpoints load into them in place), so their detached views are made once; the Adam state is
+        looked up anew on each call, because loading a checkpoint replaces it."""
         agent = self.agent
         if self._parameters is None:
-            self._parameters = {"actor": list(agent.actor.parameters()), "critic": list(agent.critic.parameters()),
-                                "actor_target": list(agent.actor_target.parameters()),
-                                "critic_target": list(agent.critic_target.parameters())}
-        tensors = {key: [p.detach() for p in params] for key, params in self._parameters.items()}
-        tensors["actor_adam"] = adam_state(agent.actor_optimizer, self._parameters["actor"])
-        tensors["critic_adam"] = adam_state(agent.critic_optimizer, self._parameters["critic"])
-        return tensors
+            modules = {"actor": agent.actor, "critic": agent.critic, "actor_target": agent.actor_target,
+                       "critic_target": agent.critic_target}
+            self._parameters = {key: list(module.parameters()) for key, module in modules.items()}
+            self._views = {key: [p.detach() for p in params] for key, params in self._parameters.items()}
+        return {**self._views, "actor_adam": adam_state(agent.actor_optimizer, self._parameters["actor"]),
+                "critic_adam": adam_state(agent.critic_optimizer, self._parameters["critic"])}
 
     def run(self, batch: dict[str, torch.Tensor], noise: torch.Tensor,
             delayed: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
