@@ -309,7 +309,8 @@ class RunConfig:
     matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
                                      "matrix shapes, measured at start (printed, and kept in config.json); bf16: "
                                      "operands and products rounded to bfloat16 (AVX512-BF16/AMX kernels; TF32/bf16 "
-                                     "on CUDA), about twice the float32 speed on such CPUs",
+                                     "on CUDA); faster products on such CPUs, but measure: on one AMD EPYC it gave "
+                                     "1.2-1.4x per training step with one thread and was slower with two",
                           choices=MATMUL_PRECISIONS)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
