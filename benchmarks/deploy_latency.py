@@ -11,7 +11,9 @@ bisected until the mean hidden-layer rate matches the task's FC2 rate, because l
 activity (an event-driven layer costs spikes × fan-out). Each latency is the median of many calls
 cycling over a fixed set of observations, one torch thread; the 10th percentile is printed too (on a
 shared machine it is the closest to an idle core). Prints a table: firing rates, SOP per inference,
-runtime µs (float32 and int8 weights), PyTorch µs, PyTorch / runtime, and the largest action difference.
+runtime µs (float32 and int8 weights), the float32 accumulates alone (the inference's own
+spiking rows added with their indices given: what remains of the runtime without neuron updates, host and
+bookkeeping), PyTorch µs, PyTorch / runtime, and the largest action difference.
 """
 
 from __future__ import annotations
@@ -106,6 +108,28 @@ def interleaved(calls: dict, inputs, rounds: int, per_round: int = 300) -> dict[
     return {name: statistics.median(values) * 1e6 for name, values in times.items()}
 
 
+def accumulates_only_microseconds(runtime, inputs, calls: int) -> float:
+    """Median µs of the float32 accumulates alone of an inference — every layer's and step's spiking rows
+    selected with their indices given (``take``) and added (``np.add.reduce``), the intra rows included: the
+    synaptic work the runtime cannot skip, without its neuron updates, host or Python bookkeeping."""
+    work = []
+    for observation in inputs[:50]:
+        trains = runtime.spike_trains(observation)
+        layers = list(runtime.layers)
+        presynaptic = trains[:-1]
+        if runtime.intra is not None:
+            layers.append(runtime.intra)
+            presynaptic.append(trains[-1][:-1])
+        work.append([(layer.weights, np.flatnonzero(step)) for layer, train in zip(layers, presynaptic, strict=True)
+                     for step in train])
+    out = np.empty(max(layer.weights.shape[1] for layer in layers), np.float32)
+
+    def accumulate(pairs):
+        for weights, rows in pairs:
+            np.add.reduce(weights.take(rows, 0), 0, None, out[:weights.shape[1]])
+    return latency_microseconds(accumulate, work, calls)[0]
+
+
 def measure(label: str, policy, inputs, calls: int, baseline=None) -> dict:
     from ilcsan.analysis.energy import measure_firing_rates
     from ilcsan.deploy import DeployedActor
@@ -132,7 +156,9 @@ def measure(label: str, policy, inputs, calls: int, baseline=None) -> dict:
     return {"actor": label, "N, M": f"{policy.state_dim}, {policy.action_dim}",
             "fr FC1/FC2/FC3": "/".join(f"{100 * rates[name]:.0f}%" for name in ("FC1", "FC2", "FC3")),
             "SOP/inference": f"{runtime.total_sop / runtime.inferences:,.0f}",
-            "runtime µs": f"{runtime_us:.0f} (p10 {runtime_p10:.0f})", "int8 µs": f"{int8_us:.0f}",
+            "runtime µs": f"{runtime_us:.0f} (p10 {runtime_p10:.0f})",
+            "accumulates only µs": f"{accumulates_only_microseconds(runtime, inputs, calls):.0f}",
+            "int8 µs": f"{int8_us:.0f}",
             "PyTorch µs": f"{torch_us:.0f} (p10 {torch_p10:.0f})", "PyTorch/runtime": f"{torch_us / runtime_us:.1f}×",
             "max |Δaction|": f"{error:.1e}", **compared}
 

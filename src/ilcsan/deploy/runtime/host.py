@@ -31,14 +31,12 @@ def deterministic_spike_train(stimulation: np.ndarray, timesteps: int, threshold
     spikes = np.empty((timesteps, stimulation.size), dtype=bool) if out is None else out
     threshold = np.float32(threshold)
     voltage = stimulation.copy()  # 0 + A
-    reset = np.empty_like(voltage)
     for t in range(timesteps):
         if t:
             np.add(voltage, stimulation, voltage)
         np.greater(voltage, threshold, spikes[t])
-        if t + 1 < timesteps:  # v − V_th·S: V_th or exactly 0 subtracted
-            np.multiply(spikes[t], threshold, reset)
-            np.subtract(voltage, reset, voltage)
+        if t + 1 < timesteps:  # v − V_th·S: V_th subtracted where S = 1, v unchanged (v − 0) elsewhere
+            np.subtract(voltage, threshold, voltage, where=spikes[t])
     return spikes
 
 
