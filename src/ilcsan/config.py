@@ -47,6 +47,19 @@ TARGET_ACTOR_PAPERS: dict[str, str] = {
 }
 """The actor in TD3's target values (``--target-actor``), each with its paper."""
 TARGET_ACTORS: tuple[str, ...] = tuple(TARGET_ACTOR_PAPERS)
+EXPLORATION_PAPERS: dict[str, str] = {
+    "gaussian": "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
+    "noisy": "NoisySAN: coloured noise in every spiking layer's charge and spike transmission and in the decoder, "
+             "with a learned decoder noise scale (Chen et al., arXiv 2403.04162)",
+}
+"""How the actor explores during training (``--exploration``), each with its paper; evaluation is deterministic."""
+EXPLORATIONS: tuple[str, ...] = tuple(EXPLORATION_PAPERS)
+NOISY_RETURN_REFERENCE: dict[str, float] = {
+    "Ant": 6000.0, "HalfCheetah": 12000.0, "Hopper": 4000.0, "Walker2d": 6000.0, "Humanoid": 6000.0,
+    "HumanoidStandup": 180000.0, "InvertedDoublePendulum": 10000.0, "BipedalWalker": 320.0,
+}
+"""NoisySAN's per-task return R* (``SUP_R`` in the authors' TD3 script in SpikingJelly's ``noisy_san`` example):
+the weight of the noise penalty is k = max(0, R)/R*, R the latest evaluation's mean return."""
 PROXY_HIDDEN: tuple[int, ...] = (512, 512)
 """The proxy actor's hidden widths (ReLU MLP, tanh output): the default ``--proxy_hidden_sizes 512 512`` of the
 Proxy Target code as reproduced in ``madao2333/Proxy-Target-with-PLIF`` (main.py)."""
@@ -90,7 +103,8 @@ def setting(default: Any, help: str, *, choices: tuple[str, ...] | Mapping[str, 
     """A dataclass field described once for the command line and for :func:`check_settings`.
 
     ``flag`` is the CLI name when it is not the field name with dashes; ``minimum`` bounds whole numbers;
-    ``bounds`` is ``"decay"`` (a factor in [0, 1]) or ``"positive"`` for real numbers; ``switches`` replace
+    ``bounds`` is ``"decay"`` (a factor in [0, 1]), ``"positive"`` or ``"non-negative"`` for real numbers (None,
+    where a field allows it, passes); ``switches`` replace
     the field's own switch by switches that each set part of it.
     """
     metadata = {"help": help, "choices": choices, "flag": flag, "aliases": aliases, "minimum": minimum,
@@ -116,6 +130,10 @@ def check_settings(config: Any) -> None:
             raise UserError(f"{name} {value!r} is not one of: {', '.join(meta['choices'])}")
         if meta["minimum"] is not None and value is not None and value < meta["minimum"]:
             raise UserError(f"{name} must be at least {meta['minimum']}, got {value}")
+        if meta["bounds"] is not None and value is None:
+            continue
+        if meta["bounds"] == "non-negative" and not (math.isfinite(value) and value >= 0):
+            raise UserError(f"{name} must be a number of at least 0, got {value}")
         if meta["bounds"] == "decay" and not (math.isfinite(value) and 0.0 <= value <= 1.0):
             raise UserError(f"{name} is a decay factor in [0, 1], got {value}")
         if meta["bounds"] == "positive" and not (math.isfinite(value) and value > 0):
@@ -273,6 +291,18 @@ class TD3Config:
     proxy_iterations: int = setting(3, "Proxy Target: regression steps of the proxy per TD3 update (K; 1 with "
                                        "--proxy-lr 3e-3 is the cheap setting)", minimum=1)
     proxy_lr: float = setting(1e-3, "Proxy Target: the proxy's Adam learning rate", bounds="positive")
+    exploration: str = setting("gaussian", "how the actor explores: TD3's Gaussian action noise (the paper), or "
+                                           "NoisySAN's coloured noise inside the spiking neurons (Chen et al. "
+                                           "2024; spiking actors only)", choices=EXPLORATIONS)
+    noisy_sigma: float = setting(0.5, "NoisySAN: sigma_init; a layer of D neurons gets the fixed noise scale "
+                                      "sigma_init/sqrt(D) on charge and transmission, the decoder's learned "
+                                      "scale starts at sigma_init/sqrt(M)", bounds="positive")
+    noisy_beta: float = setting(1.0, "NoisySAN: spectral exponent of the noise, power ~ 1/f^beta (0 white, 1 "
+                                     "pink: the paper's choice, 2 brown)", bounds="non-negative")
+    noisy_return_reference: float | None = setting(
+        None, "NoisySAN: the return R* at which the noise penalty's weight max(0, R)/R* reaches 1 (default per "
+              "paper task: Hopper 4000, Walker2d/Ant/Humanoid 6000, HalfCheetah 12000, ...; needed for other "
+              "tasks)", bounds="positive")
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)

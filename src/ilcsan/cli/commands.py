@@ -68,7 +68,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_actors(args: argparse.Namespace) -> int:
-    from ..config import PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, actor_config
+    from ..config import EXPLORATION_PAPERS, PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, actor_config
 
     if args.json:
         print(json.dumps({name: actor_config(name).to_dict() for name in PRESET_SUMMARIES}, indent=2))
@@ -84,9 +84,10 @@ def cmd_actors(args: argparse.Namespace) -> int:
                      "lr": c.learning_rate, "fully spiking": "yes" if c.fully_spiking else "no",
                      "what": summary})
     _print_table(rows, ["preset", "encoder", "neuron", "hidden", "intra", "decoder", "lr", "fully spiking", "what"])
-    print("\ntraining methods for spiking actors (TD3 options; DAN keeps TD3's own target):")
-    _print_table([{"option": f"--target-actor {name}", "what": paper} for name, paper in TARGET_ACTOR_PAPERS.items()],
-                 ["option", "what"])
+    print("\ntraining methods for spiking actors (TD3 options; DAN keeps TD3's own target and action noise):")
+    methods = [{"option": f"--target-actor {name}", "what": paper} for name, paper in TARGET_ACTOR_PAPERS.items()]
+    methods += [{"option": f"--exploration {name}", "what": paper} for name, paper in EXPLORATION_PAPERS.items()]
+    _print_table(methods, ["option", "what"])
     return 0
 
 

@@ -169,13 +169,14 @@ BEYOND = TableSpec(
     rows=(
         _row("ilc-san", "ILC-SAN", "ilc-san"),
         RowSpec("ilc-san+proxy", "ILC-SAN + Proxy Target", "ilc-san", {}, True, {"target_actor": "proxy"}),
+        RowSpec("ilc-san+noisy", "ILC-SAN + NoisySAN", "ilc-san", {}, True, {"exploration": "noisy"}),
         _row("dan", "DAN", "dan"),
     ),
     seeds=5,
     steps=200_000,
 )
-"""Our grid (not a table of the paper): Proxy Target (Xu et al., NeurIPS 2025) against plain ILC-SAN and DAN on
-Hopper, 5 seeds × 200 000 steps by default. NoisySAN exploration has no row yet (not implemented)."""
+"""Our grid (not a table of the paper): Proxy Target (Xu et al., NeurIPS 2025) and NoisySAN exploration (Chen et
+al. 2024) against plain ILC-SAN and DAN on Hopper, 5 seeds × 200 000 steps by default."""
 
 TABLES: dict[str, TableSpec] = {spec.name: spec for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND)}
 """The paper's five reward tables as grids, by name, and our ``beyond`` grid."""
@@ -186,7 +187,8 @@ TABLES: dict[str, TableSpec] = {spec.name: spec for spec in (PERF, DECODE, DEC_I
 
 _TOP_KEYS = ("name", "caption", "tasks", "rows", "seeds", "steps", "eval_every", "eval_episodes")
 _ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
-ROW_TD3_KEYS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr")
+ROW_TD3_KEYS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma",
+                                 "noisy_beta", "noisy_return_reference")
 """The TD3 settings a grid row may set (its training method); the grid's other TD3 settings are shared."""
 
 
@@ -341,6 +343,9 @@ def _row_td3(item: Mapping[str, Any], preset: str, where: str) -> dict[str, Any]
         raise UserError(f"{where}: td3: {error}") from None
     if preset == "dan" and td3.get("target_actor", "spiking") != "spiking":
         raise UserError(f"{where}: td3: the deep actor (preset 'dan') keeps TD3's own target actor")
+    if preset == "dan" and td3.get("exploration", "gaussian") != "gaussian":
+        raise UserError(f"{where}: td3: the deep actor (preset 'dan') has no spiking neurons to put noise in; "
+                        "it explores with TD3's action noise")
     return dict(td3)
 
 

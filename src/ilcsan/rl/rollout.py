@@ -58,6 +58,12 @@ class TrainingEnvironments:
     def __len__(self) -> int:
         return len(self.envs)
 
+    @property
+    def episode_steps(self) -> int | None:
+        """The task's step limit per episode (None without one)."""
+        spec = getattr(self.envs[0], "spec", None)
+        return getattr(spec, "max_episode_steps", None)
+
     def start(self) -> None:
         """Reset environment k with seed k: the first episode of a new run."""
         for index, (env, seed) in enumerate(zip(self.envs, self.seeds, strict=True)):

@@ -10,6 +10,7 @@ import torch
 from ..config import MATMUL_PRECISIONS, RunConfig, check_settings
 from ..errors import UserError
 from ..snn.matmul import COMPILABLE_PATHS, fastest_float32_path, layer_products, measure_paths, use_matmul_path
+from .noisy_exploration import return_reference
 
 COMPILE_PAYS_AFTER_UPDATES = {"spiking": 4_000, "deep": 25_000}
 """``--compile auto`` compiles a run with at least this many TD3 updates (steps − update_after), by network.
@@ -28,6 +29,11 @@ def validate_run(config: RunConfig) -> None:
     if config.td3.target_actor == "proxy" and config.actor.network != "spiking":
         raise UserError("--target-actor proxy replaces a spiking actor's target by a continuous proxy; DAN is "
                         "continuous already and keeps TD3's own target: drop --target-actor for DAN")
+    if config.td3.exploration == "noisy":
+        if config.actor.network != "spiking":
+            raise UserError("--exploration noisy puts noise into spiking neurons; DAN has none and explores with "
+                            "TD3's action noise: drop --exploration for DAN")
+        return_reference(config.task, config.td3)
     if not config.seeds:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):

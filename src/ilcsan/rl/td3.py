@@ -12,7 +12,9 @@ One update (``update``), in TD3's order:
   every d updates: actor ← ∇ −Q_1(s, π(s)); targets ← τ θ + (1 − τ) θ'      delayed policy updates
 
 With ``target_actor = "proxy"`` (Proxy Target, :mod:`ilcsan.rl.proxy`) π' is a continuous proxy fitted to π
-before every update instead of the soft-updated copy of π.
+before every update instead of the soft-updated copy of π. With ``exploration = "noisy"`` (NoisySAN,
+:mod:`ilcsan.rl.noisy_exploration`) the actor's loss sees π with noise in its neurons, −Q_1(s, π(s; ε)), plus the
+noise penalty k (mean σ_d)², and σ_d takes an Adam step with the actor.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from torch import nn
 from ..config import ActorConfig, TD3Config
 from ..snn.actor import build_actor
 from ..snn.ensemble import EnsembleMLP, seed_generators
+from .noisy_exploration import NoisyExploration, noisy_exploration
 from .proxy import ProxyTarget, build_proxy
 from .update_program import CompiledPerShape, UpdateProgram
 
@@ -89,7 +92,8 @@ class TD3Agent:
 
     def __init__(self, actor_config: ActorConfig, td3: TD3Config, state_dim: int, action_dim: int,
                  action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
-                 device: str | torch.device = "cpu", compile: bool = False, engine: str = "fast"):
+                 device: str | torch.device = "cpu", compile: bool = False, engine: str = "fast", task: str = "",
+                 episode_steps: int | None = None):
         self.config, self.td3, self.seeds = actor_config, td3, list(seeds)
         self.device = torch.device(device)
         self.actor = build_actor(actor_config, state_dim, action_dim, action_scale, action_offset, self.seeds,
@@ -106,6 +110,10 @@ class TD3Agent:
             module.requires_grad_(False)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=actor_config.learning_rate, fused=fused)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=td3.critic_lr, fused=fused)
+        self.exploration: NoisyExploration | None = None  # NoisySAN: noise in the neurons instead of on the action
+        if td3.exploration == "noisy":
+            self.exploration = noisy_exploration(self.actor, td3, task, episode_steps, self.seeds,
+                                                 actor_config.learning_rate, self.device)
         # compile: the whole update runs as one compiled program (UpdateProgram) and a spiking actor's acting
         # forward pass is compiled too (its many small neuron-update ops fuse into a few loops). DAN acts eagerly:
         # its three matmuls leave nothing to fuse.
@@ -135,6 +143,14 @@ class TD3Agent:
         if normalized_state.ndim == 2:
             return self.act(normalized_state[:, None, :])[:, 0]
         return self.actor_fn(torch.as_tensor(normalized_state, device=self.device)).cpu().numpy()
+
+    @torch.no_grad()
+    def explore(self, normalized_state: np.ndarray) -> np.ndarray:
+        """NoisySAN's exploring actions (K, N) → (K, M): the actor with the next window of each seed's noise
+        series in its neurons (eager; the deterministic :meth:`act` is unchanged)."""
+        noise = self.exploration.perturbation(self.exploration.acting_noise())
+        state = torch.as_tensor(normalized_state[:, None, :], device=self.device)
+        return self.actor(state, noise=noise)[:, 0].cpu().numpy()
 
     # ------------------------------------------------------------------------------ learning
     def _standard_noise(self, batch_size: int) -> torch.Tensor:
@@ -170,10 +186,22 @@ class TD3Agent:
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
     def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
-                   critic: Callable | None = None) -> torch.Tensor:
-        """Σ_k −mean_b Q_1(s, π(s)); ``actor`` and ``critic`` (called with ``first_only=True``) replace the modules."""
-        action = (actor or self.actor)(batch["obs"])
-        return -(critic or self.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
+                   critic: Callable | None = None, decoder_sigma: torch.Tensor | None = None) -> torch.Tensor:
+        """Σ_k −mean_b Q_1(s, π(s)); ``actor`` and ``critic`` (called with ``first_only=True``) replace the modules.
+
+        NoisySAN: π(s; ε) with the unit noise ``batch["actor_noise"]`` scaled into the neurons, plus the penalty
+        Σ_k k_k (mean σ_d)² with ``batch["penalty_weights"]``; ``decoder_sigma`` replaces the parameter σ_d."""
+        actor = actor or self.actor
+        exploration = self.exploration
+        if exploration is None:
+            action = actor(batch["obs"])
+        else:
+            action = actor(batch["obs"], noise=exploration.perturbation(batch["actor_noise"], decoder_sigma))
+        loss = -(critic or self.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
+        if exploration is not None:
+            sigma = exploration.decoder_sigma if decoder_sigma is None else decoder_sigma
+            loss = loss + exploration.penalty(sigma, batch["penalty_weights"])
+        return loss
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float | None]:
         """One TD3 update for all K seeds; returns the summed losses (actor loss on delayed steps).
@@ -182,23 +210,31 @@ class TD3Agent:
         """
         if self.proxy is not None:
             self.proxy.fit(self.actor_fn, batch["proxy_obs"])
+        self.updates += 1
+        delayed = self.updates % self.td3.policy_delay == 0
+        exploration = self.exploration
+        if exploration is not None and delayed:  # NoisySAN: the actor loss's noise, drawn outside the program
+            batch = {**batch, "actor_noise": exploration.update_noise(batch["obs"].shape[1]),
+                     "penalty_weights": exploration.weights}
         if self.program is not None:
-            self.updates += 1
             noise = self._standard_noise(batch["next_obs"].shape[1])
-            critic_loss, actor_loss = self.program.run(batch, noise, self.updates % self.td3.policy_delay == 0)
+            critic_loss, actor_loss = self.program.run(batch, noise, delayed)
             return {"critic_loss": critic_loss, "actor_loss": actor_loss}
         critic_loss = self.critic_loss(batch)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
         self.critic_optimizer.step()
-        self.updates += 1
         actor_loss = None
-        if self.updates % self.td3.policy_delay == 0:
+        if delayed:
             self.critic.requires_grad_(False)
             loss = self.actor_loss(batch)
             self.actor_optimizer.zero_grad(set_to_none=True)
+            if exploration is not None:
+                exploration.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.actor_optimizer.step()
+            if exploration is not None:
+                exploration.optimizer.step()
             self.critic.requires_grad_(True)
             if self.proxy is None:
                 polyak_update(self.actor_target, self.actor, self.td3.tau)

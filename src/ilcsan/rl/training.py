@@ -66,7 +66,8 @@ class Trainer:
             log(describe_matmul_choice(self.matmul))
             self.agent = TD3Agent(config.actor, config.td3, state_dim, action_dim, self.environments.action_scale,
                                   self.environments.action_offset, config.seeds, config.device,
-                                  compile=use_compile(config), engine=config.engine)
+                                  compile=use_compile(config), engine=config.engine, task=config.task,
+                                  episode_steps=self.environments.episode_steps)
             self.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim,
                                        min(config.td3.replay_size, config.steps))
             self.normalizer = RunningNormalizer(len(config.seeds), state_dim)
@@ -120,6 +121,8 @@ class Trainer:
         self.normalizer.update(transition.next_obs)
         for index in finished:
             self.environments.reset(index, step=self.step + 1)
+            if self.agent.exploration is not None:
+                self.agent.exploration.end_episode(index)
             self.normalizer.update(self.environments.observations, mask=np.arange(len(self.environments)) == index)
         self.step += 1
         if self.step >= td3.update_after and self.step % td3.update_every == 0:
@@ -127,11 +130,14 @@ class Trainer:
         return None
 
     def _explore(self) -> np.ndarray:
-        """Uniform random actions during the first start_steps, then π(s) + N(0, σ²), clipped to the bounds."""
+        """Uniform random actions during the first start_steps, then π(s) + N(0, σ²) clipped to the bounds — or,
+        with NoisySAN, π(s; ε) with the noise in the actor's neurons."""
         scale, offset = self.environments.action_scale, self.environments.action_offset
         low, high = offset - scale, offset + scale
         if self.step < self.config.td3.start_steps:
             return np.stack([rng.uniform(low, high) for rng in self.rngs])
+        if self.agent.exploration is not None:
+            return self.agent.explore(self.normalizer.normalize(self.environments.observations))
         action = self._act(self.environments.observations)
         noise = np.stack([rng.standard_normal(self.environments.action_dim) for rng in self.rngs])
         return np.clip(action + noise * self.config.td3.exploration_noise * scale, low, high)
@@ -147,6 +153,8 @@ class Trainer:
         """update_every TD3 updates, each on a fresh minibatch per seed; returns the mean losses per seed."""
         td3 = self.config.td3
         critic_total, actor_total, actor_count = 0.0, 0.0, 0
+        if self.agent.exploration is not None:
+            self.agent.exploration.set_returns(self.evaluations)
         for _ in range(td3.update_every):
             arrays = sample_minibatch(self.replay, self.normalizer, self.rngs, td3)
             losses = self.agent.update(self.agent.to_batch(arrays))

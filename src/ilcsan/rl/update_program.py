@@ -8,7 +8,8 @@ each of its two variants into one program with no Python between operations:
 
 * ``critic``: y = r + γ(1 − d) min_j Q'_j(s', clip(π'(s') + clip(σ̃ε, −c, c))), one critic Adam step;
 * ``critic+actor`` (every ``policy_delay``-th update): the same, then the actor's Adam step on −Q_1(s, π(s))
-  with the *updated* critic, then θ' ← τθ + (1 − τ)θ' for the target actor and the target critic.
+  with the *updated* critic (NoisySAN: on its noisy loss, with σ_d's Adam step beside the actor's), then
+  θ' ← τθ + (1 − τ)θ' for the target actor and the target critic.
 
 Both read and write the agent's own tensors in place — parameters, target parameters and the state of its
 ``torch.optim.Adam`` optimizers (``exp_avg``, ``exp_avg_sq``, ``step``) — so checkpoints, resuming and the
@@ -183,10 +184,11 @@ class UpdateProgram:
     def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
         return self.agent.critic_loss(batch, target, self._module(self.agent.critic, critic, self.critic_names))
 
-    def _actor_loss(self, actor: list, critic: list, batch: dict) -> torch.Tensor:
+    def _actor_loss(self, actor: list, exploration: list, critic: list, batch: dict) -> torch.Tensor:
         agent = self.agent
         return agent.actor_loss(batch, self._module(agent.actor, actor, self.actor_names),
-                                self._module(agent.critic, critic, self.critic_names))
+                                self._module(agent.critic, critic, self.critic_names),
+                                exploration[0] if exploration else None)
 
     def _critic_step(self, tensors: dict, batch: dict, noise: torch.Tensor) -> torch.Tensor:
         agent = self.agent
@@ -201,8 +203,12 @@ class UpdateProgram:
 
     def _delayed_step(self, tensors: dict, batch: dict, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         critic_loss = self._critic_step(tensors, batch, noise)
-        grads, actor_loss = grad_and_value(self._actor_loss)(tensors["actor"], tensors["critic"], batch)
-        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=self.agent.config.learning_rate)
+        lr = self.agent.config.learning_rate
+        (grads, exploration_grads), actor_loss = grad_and_value(self._actor_loss, argnums=(0, 1))(
+            tensors["actor"], tensors["exploration"], tensors["critic"], batch)
+        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=lr)
+        if tensors["exploration"]:  # NoisySAN's σ_d, with the actor's learning rate
+            adam_(tensors["exploration"], exploration_grads, *tensors["exploration_adam"], lr=lr)
         tau = self.agent.td3.tau
         if self.soft_target_actor:
             torch._foreach_lerp_(tensors["actor_target"], tensors["actor"], tau)
@@ -217,11 +223,15 @@ class UpdateProgram:
         agent = self.agent
         if self._parameters is None:
             modules = {"actor": agent.actor, "critic": agent.critic, "actor_target": agent.actor_target,
-                       "critic_target": agent.critic_target}
-            self._parameters = {key: list(module.parameters()) for key, module in modules.items()}
+                       "critic_target": agent.critic_target, "exploration": agent.exploration}
+            self._parameters = {key: list(module.parameters()) if module is not None else []
+                                for key, module in modules.items()}
             self._views = {key: [p.detach() for p in params] for key, params in self._parameters.items()}
-        return {**self._views, "actor_adam": adam_state(agent.actor_optimizer, self._parameters["actor"]),
-                "critic_adam": adam_state(agent.critic_optimizer, self._parameters["critic"])}
+        tensors = {**self._views, "actor_adam": adam_state(agent.actor_optimizer, self._parameters["actor"]),
+                   "critic_adam": adam_state(agent.critic_optimizer, self._parameters["critic"])}
+        if agent.exploration is not None:
+            tensors["exploration_adam"] = adam_state(agent.exploration.optimizer, self._parameters["exploration"])
+        return tensors
 
     def run(self, batch: dict[str, torch.Tensor], noise: torch.Tensor,
             delayed: bool) -> tuple[torch.Tensor, torch.Tensor | None]:

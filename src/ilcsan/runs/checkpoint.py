@@ -97,6 +97,11 @@ def agent_state(agent: Any, index: int) -> dict[str, Any]:
     state["critic_optimizer"] = slice_optimizer(agent.critic_optimizer, agent.critic, index, 2)
     if agent.proxy is not None:  # Proxy Target: the proxy is the "actor_target" above, here its optimizer
         state["proxy_optimizer"] = slice_optimizer(agent.proxy.optimizer, agent.proxy.actor, index, 1)
+    exploration = agent.exploration
+    if exploration is not None:  # NoisySAN: σ_d, its optimizer and the noise streams
+        state["exploration"] = {"parameters": slice_params(exploration, index, 1),
+                                "optimizer": slice_optimizer(exploration.optimizer, exploration, index, 1),
+                                "streams": exploration.stream_state(index)}
     return state
 
 
@@ -108,6 +113,12 @@ def load_agent(agent: Any, states: list[dict[str, Any]]) -> None:
     load_optimizer(agent.critic_optimizer, agent.critic, [state["critic_optimizer"] for state in states])
     if agent.proxy is not None:
         load_optimizer(agent.proxy.optimizer, agent.proxy.actor, [state["proxy_optimizer"] for state in states])
+    exploration = agent.exploration
+    if exploration is not None:
+        load_params(exploration, [state["exploration"]["parameters"] for state in states], "decoder noise scale")
+        load_optimizer(exploration.optimizer, exploration, [state["exploration"]["optimizer"] for state in states])
+        for index, state in enumerate(states):
+            exploration.load_stream_state(index, state["exploration"]["streams"])
     agent.updates = states[0]["updates"]
 
 
@@ -321,6 +332,8 @@ class TrainingCheckpoints:
             trainer.evaluations[index] = list(state["evaluations"])
             directory.write_metrics(trainer.evaluations[index])
             if not environments.restore(index, as_arrays(state["env"]), trainer.step):
+                if trainer.agent.exploration is not None:  # a new episode draws a new noise series
+                    trainer.agent.exploration.end_episode(index)
                 self.log(f"note: {trainer.config.task} cannot restore a running episode; seed "
                          f"{trainer.config.seeds[index]} resumes with a new episode (not bit-identical)")
         self.write_results(trainer)  # a crash may have come between the checkpoint and its result.json

@@ -28,6 +28,7 @@ from .encoders import Encoder
 from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 from .intra import IntraLayerConnections
 from .neurons import neuron_model
+from .noise import NeuronNoise
 
 ACTOR_SALT = 1
 
@@ -103,17 +104,20 @@ class SpikingActor(_Actor):
             self.intra.reset_parameters(generators)
         self.decoder.reset_parameters(generators)
 
-    def layer_spikes(self, currents: torch.Tensor, output_layer: bool) -> torch.Tensor:
+    def layer_spikes(self, currents: torch.Tensor, output_layer: bool,
+                     transmission: torch.Tensor | None = None) -> torch.Tensor:
         """Neuron updates of one layer over T steps; currents (K, T, B, D) → spikes (K, T, B, D).
 
         On the output layer the intra-layer current I_t of Eq. (10) is added from t = 2 on; every other
         layer (and an output layer without intra-layer connections) runs the neuron's fused T-step train
-        when it has one.
+        when it has one. ``transmission`` (NoisySAN, :class:`~ilcsan.snn.noise.NeuronNoise`) is added to the
+        spikes passed on, the intra-layer connections included.
         """
         neuron = self.neuron
         intra = self.intra if output_layer else None
         if intra is None and neuron.train is not None:
-            return neuron.train(currents, neuron.params)
+            spikes = neuron.train(currents, neuron.params)
+            return spikes if transmission is None else spikes + transmission
         state = neuron.initial_state(currents[:, 0], neuron.params)
         weight = intra.masked_weight() if intra is not None else None
         bias = intra.masked_bias() if intra is not None else None
@@ -122,12 +126,14 @@ class SpikingActor(_Actor):
         for t in range(timesteps):
             current = currents[:, t] if intra_current is None else currents[:, t] + intra_current
             step_spikes, state = neuron.step(current, state, neuron.params)
+            if transmission is not None:
+                step_spikes = step_spikes + transmission[:, t]
             spikes.append(step_spikes)
             if intra is not None and t < timesteps - 1:
                 intra_current = intra(step_spikes, weight, bias)
         return torch.stack(spikes, dim=1)
 
-    def _run_layer_major(self, state: torch.Tensor) -> ActorOutput:
+    def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None) -> ActorOutput:
         encoded = self.encoder(state)
         values, constant = encoded.values, encoded.constant
         inputs = []
@@ -136,22 +142,30 @@ class SpikingActor(_Actor):
             currents = layer(values)
             if constant:
                 currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
-            values = self.layer_spikes(currents, output_layer=index == len(self.layers) - 1)
+            if noise is not None:
+                currents = currents + noise.charge[index]
+            values = self.layer_spikes(currents, index == len(self.layers) - 1,
+                                       None if noise is None else noise.transmission[index])
             constant = False
-        output, voltages = self.decoder(values)
+        output, voltages = self.decoder(values, None if noise is None else noise.decoder)
         return ActorOutput(self.squash(output), tuple(inputs), values, voltages)
 
-    def run(self, state: torch.Tensor, engine: str | None = None) -> ActorOutput:
-        """Normalised state (K, B, N) → :class:`ActorOutput`; ``engine`` overrides :attr:`engine` for analysis."""
+    def run(self, state: torch.Tensor, engine: str | None = None, noise: NeuronNoise | None = None) -> ActorOutput:
+        """Normalised state (K, B, N) → :class:`ActorOutput`; ``engine`` overrides :attr:`engine` for analysis;
+        ``noise`` perturbs the neurons (NoisySAN exploration, training only)."""
         if checked_engine(engine or self.engine) == "reference":
             from .reference import run_reference  # the oracle module builds on this one
 
-            return run_reference(self, state)
-        return self._run_layer_major(state)
+            return run_reference(self, state, noise)
+        return self._run_layer_major(state, noise)
 
-    def forward(self, state: torch.Tensor) -> torch.Tensor:
-        """Normalised state (K, B, N) → action (K, B, M)."""
-        return self.run(state).action
+    def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None) -> torch.Tensor:
+        """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given."""
+        return self.run(state, noise=noise).action
+
+    def noise_widths(self) -> tuple[int, ...]:
+        """The widths D_l of the synaptic layers' outputs, whose neurons NoisySAN perturbs."""
+        return tuple(layer.out_features for layer in self.layers)
 
 
 class DeepActor(_Actor):

@@ -81,23 +81,33 @@ class PopulationDecoder(nn.Module):
         bias = self.bias.reshape(k, *([1] * (spikes.dim() - 2)), populations)
         return (grouped * weight).sum(-1) + bias
 
-    def voltage_step(self, spikes: torch.Tensor, voltage: torch.Tensor | None) -> torch.Tensor:
+    def voltage_step(self, spikes: torch.Tensor, voltage: torch.Tensor | None,
+                     perturbation: torch.Tensor | None = None) -> torch.Tensor:
         """One step of the LI neuron driven by the group FC, Eq. (7): spikes S_t (K, B, M·P) and V_{t−1}
-        (None before t = 1, i.e. V_0 = V_reset) → V_t (K, B, M)."""
+        (None before t = 1, i.e. V_0 = V_reset) → V_t (K, B, M); ``perturbation`` (K, B, M) is added to the drive."""
         drive = self.group_fc(spikes)
+        if perturbation is not None:
+            drive = drive + perturbation
         voltage = torch.full_like(drive, self.reset) if voltage is None else voltage
         return li_step(drive, voltage, self.alpha_voltage, self.reset)
 
-    def readout(self, spikes: torch.Tensor, voltages: torch.Tensor | None) -> torch.Tensor:
+    def readout(self, spikes: torch.Tensor, voltages: torch.Tensor | None,
+                perturbation: torch.Tensor | None = None) -> torch.Tensor:
         """O (K, B, M): Stat(V_1..V_T) of the voltages (Eq. (8)), or for ``fr`` the group FC of the firing
-        rate of the spike train (K, T, B, M·P)."""
+        rate of the spike train (K, T, B, M·P), plus the mean over t of the drive's ``perturbation`` (K, T, B, M)."""
         if not self.uses_voltages:
-            return self.group_fc(spikes.mean(dim=1))
+            output = self.group_fc(spikes.mean(dim=1))
+            return output if perturbation is None else output + perturbation.mean(dim=1)
         return select_statistic(voltages, self.statistic)
 
-    def forward(self, spikes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Output spikes (K, T, B, M·P) → (O (K, B, M), LI voltages (K, T, B, M) or None for ``fr``)."""
+    def forward(self, spikes: torch.Tensor,
+                perturbation: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Output spikes (K, T, B, M·P) → (O (K, B, M), LI voltages (K, T, B, M) or None for ``fr``);
+        ``perturbation`` (K, T, B, M) is added to the drive X_t (NoisySAN)."""
         voltages = None
         if self.uses_voltages:
-            voltages = integrate_voltages(self.group_fc(spikes), self.alpha_voltage, self.reset)
-        return self.readout(spikes, voltages), voltages
+            drive = self.group_fc(spikes)
+            if perturbation is not None:
+                drive = drive + perturbation
+            voltages = integrate_voltages(drive, self.alpha_voltage, self.reset)
+        return self.readout(spikes, voltages, perturbation), voltages

@@ -1,47 +1,88 @@
-"""Coloured Gaussian noise, the time-correlated noise of NoisySAN (Chen, Peng, Huang, Tian, arXiv 2403.04162).
+"""NoisySAN's noisy neurons (Chen, Peng, Huang, Tian, arXiv 2403.04162): coloured Gaussian noise and where it enters.
 
 NoisySAN perturbs a spiking actor during exploration with noise whose power spectrum falls as S(f) ∝ f^−β:
 β = 0 is white noise, β = 1 pink (the paper finds pink best), β = 2 brown (a random walk). One series per
-neuron runs along time, across the T simulation steps of an action and across the steps of an episode, so
-successive steps see correlated perturbations.
+noise channel runs along time, across the T simulation steps of an action and across the steps of an episode,
+so successive steps see correlated perturbations. :class:`NeuronNoise` says where the perturbations enter the
+forward pass (:mod:`ilcsan.snn.actor`); :mod:`ilcsan.rl.noisy_exploration` draws them during training.
 
 The series is drawn in the frequency domain (Timmer & König 1995, A&A 300, 707, the method of SpikingJelly's
 NoisySAN example): for the n-sample rfft frequencies f_j = j/n, j = 0..⌊n/2⌋, independent Gaussian real and
 imaginary parts with standard deviation s_j = max(f_j, 1/n)^(−β/2) (frequencies below the lowest non-zero one
 are flat), a real DC term (and Nyquist term when n is even), then the inverse rfft divided by the theoretical
 standard deviation of the non-constant part, σ = (2/n)·sqrt(Σ_{j≥1} w_j²), w_j = s_j except w_{n/2} = s_{n/2}/2
-for even n. So a series' variance about its own mean is ≈ 1 (measured 1.00, 1.01, 1.03 for β = 0, 1, 2 and
-n = 1000); its random constant (the DC term) comes on top: E[x²] ≈ 1.00, 1.08, 1.33.
+for even n. So a series' variance about its own mean is 1 in expectation; its random constant (the DC term)
+comes on top: E[x²] = 1.00, 1.07, 1.30 for β = 0, 1, 2 and n = 1000.
 
-Not yet wired into the actor: NoisySAN's exploration itself is still to be built on this.
+Because the Fourier coefficients are independent, such a series is a circular stationary Gaussian process:
+any window of w consecutive samples is N(0, Σ) with the Toeplitz covariance of :func:`window_covariance`.
 """
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
+import torch
 
 
-def coloured_noise(beta: float, shape: tuple[int, ...], generator: np.random.Generator) -> np.ndarray:
-    """Unit-variance Gaussian noise with power spectrum ∝ f^−β along the last axis of ``shape`` (time); all other
-    axes are independent series. float64, from ``generator`` only (reproducible, checkpointable)."""
-    samples = shape[-1]
-    if samples < 2:
-        raise ValueError(f"coloured noise needs at least 2 samples in time, got {samples}")
+class NeuronNoise(NamedTuple):
+    """Additive perturbations of one forward pass of a spiking actor, already scaled, each (K, T, B, D).
+
+    ``charge[l]`` is added to synaptic layer l's input current X_t^l before its neurons charge (on the output
+    layer together with the intra-layer current); ``transmission[l]`` is added to the spikes S_t^l the layer
+    passes on — to layer l + 1, to the output layer's intra-layer connections and to the decoder — while the
+    neuron's own reset uses its clean spike; ``decoder`` is added to the decoder's drive X_t^m, the LI neuron's
+    input (for PopSAN's firing-rate decoder, averaged over t with the drive).
+    """
+
+    charge: tuple[torch.Tensor, ...]
+    transmission: tuple[torch.Tensor, ...]
+    decoder: torch.Tensor
+
+
+def _spectrum_scales(beta: float, samples: int) -> tuple[np.ndarray, float]:
+    """(s_j for the rfft frequencies, σ of the non-constant part) of the module docstring, float64."""
     frequencies = np.fft.rfftfreq(samples)
     scale = np.maximum(frequencies, 1.0 / samples) ** (-beta / 2.0)
     weights = scale[1:].copy()
     if samples % 2 == 0:
         weights[-1] /= 2.0  # the Nyquist term is real: half the power of a complex pair
-    sigma = 2.0 * np.sqrt(np.sum(weights ** 2)) / samples
-    spectrum_shape = (*shape[:-1], len(frequencies))
-    real = generator.normal(size=spectrum_shape) * scale
-    imaginary = generator.normal(size=spectrum_shape) * scale
+    return scale, 2.0 * math.sqrt(float(np.sum(weights ** 2))) / samples
+
+
+def coloured_noise(beta: float, shape: tuple[int, ...], generator: torch.Generator) -> torch.Tensor:
+    """Unit-variance Gaussian noise with power spectrum ∝ f^−β along the last axis of ``shape`` (time); all other
+    axes are independent series. float32, from ``generator`` only (reproducible, checkpointable)."""
+    samples = shape[-1]
+    if samples < 2:
+        raise ValueError(f"coloured noise needs at least 2 samples in time, got {samples}")
+    scale_np, sigma = _spectrum_scales(beta, samples)
+    scale = torch.as_tensor(scale_np, dtype=torch.float32)
+    spectrum_shape = (*shape[:-1], len(scale_np))
+    real = torch.randn(spectrum_shape, generator=generator) * scale
+    imaginary = torch.randn(spectrum_shape, generator=generator) * scale
     imaginary[..., 0] = 0.0
-    real[..., 0] *= np.sqrt(2.0)
+    real[..., 0] *= math.sqrt(2.0)
     if samples % 2 == 0:
         imaginary[..., -1] = 0.0
-        real[..., -1] *= np.sqrt(2.0)
-    return np.fft.irfft(real + 1j * imaginary, n=samples, axis=-1) / sigma
+        real[..., -1] *= math.sqrt(2.0)
+    return torch.fft.irfft(torch.complex(real, imaginary), n=samples, dim=-1) / sigma
+
+
+def window_covariance(beta: float, samples: int, window: int) -> np.ndarray:
+    """Covariance (window, window) of ``window`` consecutive samples of :func:`coloured_noise` series of length
+    ``samples``: c(τ) = (2 s_0² + 4 Σ_{0<j<n/2} s_j² cos(2πjτ/n) + 2 s_{n/2}² (−1)^τ [n even]) / (nσ)²."""
+    scale, sigma = _spectrum_scales(beta, samples)
+    power = 4.0 * scale ** 2
+    power[0] = 2.0 * scale[0] ** 2
+    if samples % 2 == 0:
+        power[-1] = 2.0 * scale[-1] ** 2
+    lags = np.arange(window)
+    frequencies = np.arange(len(scale))
+    covariance = np.cos(2 * np.pi * np.outer(lags, frequencies) / samples) @ power / (samples * sigma) ** 2
+    return covariance[np.abs(lags[:, None] - lags[None, :])]
 
 
 def autocorrelation(series: np.ndarray, lag: int) -> float:

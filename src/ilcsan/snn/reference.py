@@ -16,10 +16,12 @@ from __future__ import annotations
 import torch
 
 from .actor import ActorOutput, SpikingActor
+from .noise import NeuronNoise
 
 
-def run_reference(actor: SpikingActor, state: torch.Tensor) -> ActorOutput:
-    """Normalised state (K, B, N) → :class:`ActorOutput` by Algorithm 1's time loop."""
+def run_reference(actor: SpikingActor, state: torch.Tensor, noise: NeuronNoise | None = None) -> ActorOutput:
+    """Normalised state (K, B, N) → :class:`ActorOutput` by Algorithm 1's time loop; ``noise`` adds NoisySAN's
+    perturbations at each step where :class:`~ilcsan.snn.noise.NeuronNoise` says."""
     encoded = actor.encoder(state)
     neuron, decoder, intra = actor.neuron, actor.decoder, actor.intra
     last = len(actor.layers) - 1
@@ -35,14 +37,18 @@ def run_reference(actor: SpikingActor, state: torch.Tensor) -> ActorOutput:
             current = layer(spikes)
             if index == last and intra_current is not None:
                 current = current + intra_current
+            if noise is not None:
+                current = current + noise.charge[index][:, t]
             if layer_states[index] is None:
                 layer_states[index] = neuron.initial_state(current, neuron.params)
             spikes, layer_states[index] = neuron.step(current, layer_states[index], neuron.params)
+            if noise is not None:
+                spikes = spikes + noise.transmission[index][:, t]
         if intra is not None and t < timesteps - 1:
             intra_current = intra(spikes)
         output_spikes.append(spikes)
         if decoder.uses_voltages:
-            voltage = decoder.voltage_step(spikes, voltage)
+            voltage = decoder.voltage_step(spikes, voltage, None if noise is None else noise.decoder[:, t])
             voltages.append(voltage)
     spike_train = torch.stack(output_spikes, dim=1)
     voltage_trace = torch.stack(voltages, dim=1) if voltages else None
@@ -50,5 +56,5 @@ def run_reference(actor: SpikingActor, state: torch.Tensor) -> ActorOutput:
         per_layer[0] if (index == 0 and encoded.constant) else torch.stack(per_layer, dim=1)
         for index, per_layer in enumerate(inputs)
     )
-    return ActorOutput(actor.squash(decoder.readout(spike_train, voltage_trace)), layer_inputs, spike_train,
-                       voltage_trace)
+    readout = decoder.readout(spike_train, voltage_trace, None if noise is None else noise.decoder)
+    return ActorOutput(actor.squash(readout), layer_inputs, spike_train, voltage_trace)

@@ -1,0 +1,164 @@
+"""NoisySAN exploration (Chen, Peng, Huang, Tian, arXiv 2403.04162): noise inside the spiking actor, not on its action.
+
+While training, the actor acts with additive coloured noise (:func:`ilcsan.snn.noise.coloured_noise`, spectral
+exponent β = ``noisy_beta``) where :class:`~ilcsan.snn.noise.NeuronNoise` says: in the charge and in the spike
+transmission of every synaptic layer l of width D_l, with the fixed scale σ_l = σ_init/√D_l, and in the decoder's
+drive with a *learned* scale σ_d (one per action dimension, initial σ_init/√M). No Gaussian noise is added to the
+action, and the target actor and every evaluation act without noise.
+
+Noise channels: per seed C = 2·ΣD_l + M series (charge and transmission of each neuron, then the decoder),
+ordered [charge_1, transmission_1, charge_2, …, decoder]. The i-th action of an episode reads samples iT … iT+T−1
+of series drawn when the episode's first noisy action is taken, (episode step limit + 1)·T samples long (as
+the authors' script does): the noise is correlated across the T steps of an action and across the actions of an
+episode.
+
+The actor update minimises, per seed,
+
+    −Q_1(s, π(s; ε)) + k · (mean_m σ_d,m)²,    k = max(0, R) / R*,
+
+R the seed's latest evaluation return (0 before the first) and R* the task's reference return
+(:data:`~ilcsan.config.NOISY_RETURN_REFERENCE`): as the actor gets good, the penalty pulls the decoder's noise
+down. The gradient reaches σ_d through ε. Here ε for each minibatch state is a fresh window of T samples of the
+same process — a Gaussian vector with the window covariance of :func:`~ilcsan.snn.noise.window_covariance`, so
+exactly distributed as an exploration window. The authors' script instead replays the noise each transition
+was collected with; that costs C·T floats per transition (5 435 for Hopper: 4.3 GB for a 200 000-step seed),
+which our replay buffer and checkpoints do not carry.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..config import NOISY_RETURN_REFERENCE, TD3Config
+from ..errors import UserError
+from ..snn.noise import NeuronNoise, coloured_noise, window_covariance
+
+NOISY_SALT = 5
+"""Offset of the noise generators from a seed (the actor, critic, smoothing noise and proxy use others)."""
+DEFAULT_EPISODE_STEPS = 1000
+"""Series length (in actions) for a task without a time limit."""
+
+
+def return_reference(task: str, td3: TD3Config) -> float:
+    """R* of the penalty weight: ``--noisy-return-reference`` if given, else NoisySAN's value for a paper task."""
+    if td3.noisy_return_reference is not None:
+        return float(td3.noisy_return_reference)
+    known = {name.lower(): value for name, value in NOISY_RETURN_REFERENCE.items()}
+    if task.lower() in known:
+        return known[task.lower()]
+    raise UserError(f"--exploration noisy on {task} needs --noisy-return-reference R (the return at which the noise "
+                    f"penalty reaches full weight; NoisySAN's values: Hopper 4000, Ant 6000, HalfCheetah 12000)")
+
+
+class NoisyExploration(nn.Module):
+    """The noise of K seeds: the learned decoder scales σ_d (K, M) — a parameter with its own Adam optimiser —,
+    each seed's exploration series, and the draws of the update's noise windows."""
+
+    def __init__(self, widths: Sequence[int], action_dim: int, timesteps: int, td3: TD3Config,
+                 reference_return: float, episode_steps: int | None, seeds: Sequence[int], learning_rate: float,
+                 device: torch.device):
+        super().__init__()
+        self.widths, self.action_dim, self.timesteps = tuple(widths), action_dim, timesteps
+        self.layer_sigmas = tuple(td3.noisy_sigma / math.sqrt(width) for width in self.widths)
+        self.decoder_sigma = nn.Parameter(torch.full((len(seeds), action_dim), td3.noisy_sigma / math.sqrt(action_dim),
+                                                     device=device))
+        self.beta, self.reference_return = td3.noisy_beta, reference_return
+        self.channels = 2 * sum(self.widths) + action_dim
+        self.series_samples = ((episode_steps or DEFAULT_EPISODE_STEPS) + 1) * timesteps
+        covariance = window_covariance(self.beta, self.series_samples, timesteps)
+        self.window_factor = torch.as_tensor(np.linalg.cholesky(covariance), dtype=torch.float32, device=device)
+        self.generators = [torch.Generator().manual_seed(seed * 1_000_003 + NOISY_SALT) for seed in seeds]
+        self.update_generators = [torch.Generator(device=device).manual_seed(seed * 1_000_003 + NOISY_SALT + 1)
+                                  for seed in seeds]
+        self.series: list[torch.Tensor | None] = [None] * len(seeds)  # (samples, C) of the running episode
+        self.series_states: list[torch.Tensor | None] = [None] * len(seeds)  # generator state it was drawn from
+        self.cursors = [0] * len(seeds)
+        self.optimizer = torch.optim.Adam(self.parameters(), lr=learning_rate, fused=device.type in ("cpu", "cuda"))
+        self.weights = torch.zeros(len(seeds), device=device)  # k of the penalty, per seed (set_returns)
+        self.device = device
+
+    # ----------------------------------------------------------------------------- exploring
+    def end_episode(self, index: int) -> None:
+        """Seed ``index``'s episode ended: its next noisy action starts a new series."""
+        self.series[index], self.series_states[index], self.cursors[index] = None, None, 0
+
+    def acting_noise(self) -> torch.Tensor:
+        """The next window of every seed's series as unit noise (K, 1, T, C), the cursor moved on by T."""
+        windows = []
+        for index in range(len(self.series)):
+            if self.series[index] is None or self.cursors[index] + self.timesteps > self.series_samples:
+                self._draw_series(index)
+            start = self.cursors[index]
+            windows.append(self.series[index][start:start + self.timesteps])
+            self.cursors[index] = start + self.timesteps
+        return torch.stack(windows)[:, None].to(self.device)
+
+    def _draw_series(self, index: int, state: torch.Tensor | None = None) -> None:
+        generator = self.generators[index]
+        if state is not None:
+            generator.set_state(state)
+        self.series_states[index] = generator.get_state()
+        self.series[index] = coloured_noise(self.beta, (self.channels, self.series_samples), generator).T.contiguous()
+        self.cursors[index] = 0
+
+    # ------------------------------------------------------------------------------- learning
+    def update_noise(self, batch_size: int) -> torch.Tensor:
+        """Unit noise (K, B, T, C) for the actor loss: per state and channel an independent window of T samples,
+        N(0, Σ_T) with Σ_T the window covariance of the exploration series (one matmul of N(0, I) draws)."""
+        shape = (batch_size, self.channels, self.timesteps)
+        white = torch.stack([torch.randn(shape, generator=g, device=self.device) for g in self.update_generators])
+        return (white @ self.window_factor.T).transpose(-1, -2)
+
+    def perturbation(self, unit: torch.Tensor, decoder_sigma: torch.Tensor | None = None) -> NeuronNoise:
+        """Scale unit noise (K, B, T, C) into the actor's :class:`NeuronNoise` ((K, T, B, D) each);
+        ``decoder_sigma`` replaces the parameter σ_d (the compiled update passes its own tensor)."""
+        sigma = self.decoder_sigma if decoder_sigma is None else decoder_sigma
+        unit = unit.transpose(1, 2)
+        charge, transmission, start = [], [], 0
+        for width, scale in zip(self.widths, self.layer_sigmas, strict=True):
+            charge.append(unit[..., start:start + width] * scale)
+            transmission.append(unit[..., start + width:start + 2 * width] * scale)
+            start += 2 * width
+        return NeuronNoise(tuple(charge), tuple(transmission), unit[..., start:] * sigma[:, None, None, :])
+
+    def set_returns(self, evaluations: Sequence[Sequence[dict[str, float]]]) -> None:
+        """The penalty weights k = max(0, R)/R* per seed, R the seed's latest evaluation return (0 before the first)."""
+        latest = [rows[-1]["eval_return_mean"] if rows else 0.0 for rows in evaluations]
+        self.weights = torch.as_tensor([max(0.0, r) / self.reference_return for r in latest], dtype=torch.float32,
+                                       device=self.device)
+
+    @staticmethod
+    def penalty(decoder_sigma: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """Σ_k k_k · (mean_m σ_d,k,m)²: the noise-reduction term of the actor loss."""
+        return (weights * decoder_sigma.mean(dim=-1) ** 2).sum()
+
+    # ---------------------------------------------------------------------------- checkpoints
+    def stream_state(self, index: int) -> dict[str, Any]:
+        """Seed ``index``'s noise streams: the generator states and where its running episode's series is read."""
+        return {"generator": self.generators[index].get_state(),
+                "update_generator": self.update_generators[index].get_state(),
+                "series_state": self.series_states[index], "cursor": self.cursors[index]}
+
+    def load_stream_state(self, index: int, state: dict[str, Any]) -> None:
+        """Continue seed ``index``'s streams from :meth:`stream_state` (the series is drawn again from its state)."""
+        self.update_generators[index].set_state(state["update_generator"])
+        if state["series_state"] is None:
+            self.end_episode(index)
+        else:
+            self._draw_series(index, state["series_state"])
+            self.cursors[index] = int(state["cursor"])
+        self.generators[index].set_state(state["generator"])
+
+
+def noisy_exploration(actor: nn.Module, td3: TD3Config, task: str, episode_steps: int | None,
+                      seeds: Sequence[int], learning_rate: float, device: torch.device) -> NoisyExploration:
+    """The NoisySAN exploration of a spiking ``actor`` (its layer widths, M and T) on ``task``."""
+    return NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, td3,
+                            return_reference(task, td3), episode_steps, seeds, learning_rate, device)
+
