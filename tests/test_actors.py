@@ -176,7 +176,8 @@ def test_reference_engine_uses_the_decoders_step_and_readout(monkeypatch):
     actor = make(small(decoder="mean", alpha_v_li=0.5))
     state = torch.randn(1, 8, 3, generator=torch.Generator().manual_seed(3))
     before = actor.run(state, "reference").action
-    monkeypatch.setattr(PopulationDecoder, "readout", lambda self, spikes, voltages: voltages.sum(dim=1) + 7.0)
+    monkeypatch.setattr(PopulationDecoder, "readout",
+                        lambda self, spikes, voltages, perturbation=None: voltages.sum(dim=1) + 7.0)
     after = {engine: actor.run(state, engine).action for engine in ("fast", "reference")}
     assert not torch.allclose(before, after["reference"])
     assert torch.allclose(after["fast"], after["reference"], atol=1e-5)

@@ -166,6 +166,11 @@ def test_a_compiled_noisy_agent_updates_like_the_eager_one():
     assert_same_updates(eager, compiled, [_random_batch(rng, 1) for _ in range(4)], atol=1e-4)
     assert torch.allclose(eager.exploration.decoder_sigma, compiled.exploration.decoder_sigma, atol=1e-6)
     assert not torch.allclose(eager.exploration.decoder_sigma, torch.full((1, 2), 0.5 / np.sqrt(2)))
+    states = rng.normal(size=(1, 3)).astype(np.float32)
+    for _ in range(3):  # exploring: the same noise windows, the learned σ_d read in place by the compiled program
+        assert np.allclose(eager.explore(states), compiled.explore(states), atol=1e-5)
+    (program,) = compiled.exploring_fn.programs.values()
+    assert program.arguments is not None  # called directly, its inputs resolved to the agent's own tensors
 
 
 def test_each_seed_of_a_stacked_noisy_run_explores_and_updates_like_a_single_run():

@@ -156,6 +156,18 @@ class NoisyExploration(nn.Module):
         self.generators[index].set_state(state["generator"])
 
 
+class ExploringActor(nn.Module):
+    """The actor with NoisySAN's noise, as one module (so that acting compiles as one program): (state (K, B, N),
+    unit noise (K, B, T, C)) → action (K, B, M)."""
+
+    def __init__(self, actor: nn.Module, exploration: NoisyExploration):
+        super().__init__()
+        self.actor, self.exploration = actor, exploration
+
+    def forward(self, state: torch.Tensor, unit_noise: torch.Tensor) -> torch.Tensor:
+        return self.actor(state, noise=self.exploration.perturbation(unit_noise))
+
+
 def noisy_exploration(actor: nn.Module, td3: TD3Config, task: str, episode_steps: int | None,
                       seeds: Sequence[int], learning_rate: float, device: torch.device) -> NoisyExploration:
     """The NoisySAN exploration of a spiking ``actor`` (its layer widths, M and T) on ``task``."""

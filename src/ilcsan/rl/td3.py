@@ -29,7 +29,7 @@ from torch import nn
 from ..config import ActorConfig, TD3Config
 from ..snn.actor import build_actor
 from ..snn.ensemble import EnsembleMLP, seed_generators
-from .noisy_exploration import NoisyExploration, noisy_exploration
+from .noisy_exploration import ExploringActor, NoisyExploration, noisy_exploration
 from .proxy import ProxyTarget, build_proxy
 from .update_program import CompiledPerShape, UpdateProgram
 
@@ -122,6 +122,9 @@ class TD3Agent:
             prepare_compilation()
         spiking = actor_config.network == "spiking"
         self.actor_fn = CompiledPerShape(self.actor) if compile and spiking else self.actor
+        if self.exploration is not None:
+            exploring = ExploringActor(self.actor, self.exploration)
+            self.exploring_fn = CompiledPerShape(exploring) if compile else exploring
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(np.asarray(action_scale), dtype=torch.float32, device=self.device)
@@ -147,10 +150,9 @@ class TD3Agent:
     @torch.no_grad()
     def explore(self, normalized_state: np.ndarray) -> np.ndarray:
         """NoisySAN's exploring actions (K, N) → (K, M): the actor with the next window of each seed's noise
-        series in its neurons (eager; the deterministic :meth:`act` is unchanged)."""
-        noise = self.exploration.perturbation(self.exploration.acting_noise())
+        series in its neurons (compiled with the update; the deterministic :meth:`act` is unchanged)."""
         state = torch.as_tensor(normalized_state[:, None, :], device=self.device)
-        return self.actor(state, noise=noise)[:, 0].cpu().numpy()
+        return self.exploring_fn(state, self.exploration.acting_noise())[:, 0].cpu().numpy()
 
     # ------------------------------------------------------------------------------ learning
     def _standard_noise(self, batch_size: int) -> torch.Tensor:

@@ -97,20 +97,20 @@ def with_own_code(function: Callable) -> Callable:
 
 
 class ForwardProgram:
-    """A module's forward pass for one input shape: traced once by dynamo, compiled by inductor, then called
+    """A module's forward pass for one set of input shapes: traced once by dynamo, compiled by inductor, then called
     directly, without dynamo.
 
     Entering a dynamo-compiled function costs ~30-60 µs even without guards: most of a ~100 µs batch-1 action.
-    The compiled callable's inputs are the traced graph's placeholders — the input and the module's parameters
-    and buffers, named after their paths (``l_self_modules_layers_modules_0_parameters_weight_``) — so the
-    program collects those tensors once (parameters are updated in place for the agent's life) and afterwards
-    calls inductor's code with them and the new input. If a placeholder is not one of them, every call keeps
-    going through dynamo. Call it under ``torch.no_grad()`` only.
+    The compiled callable's inputs are the traced graph's placeholders — the forward's tensor arguments and the
+    module's parameters and buffers, named after their paths (``l_self_modules_layers_modules_0_parameters_weight_``)
+    — so the program collects those tensors once (parameters are updated in place for the agent's life) and
+    afterwards calls inductor's code with them and the new inputs. If a placeholder is not one of them, every call
+    keeps going through dynamo. Call it under ``torch.no_grad()`` only.
     """
 
     def __init__(self, module: nn.Module):
         self.module, self.compiled, self.arguments = module, None, None
-        self.input_name = "l_" + next(iter(inspect.signature(module.forward).parameters)) + "_"
+        self.input_names = ["l_" + name + "_" for name in inspect.signature(module.forward).parameters]
         self.traced = torch.compile(with_own_code(module.forward), fullgraph=True, dynamic=False,
                                     backend=self._compile)
 
@@ -121,16 +121,18 @@ class ForwardProgram:
         tensors = {f"l_self_{_mangled(name, 'parameters')}": p for name, p in self.module.named_parameters()}
         tensors.update({f"l_self_{_mangled(name, 'buffers')}": b for name, b in self.module.named_buffers()})
         names = [node.name for node in graph.graph.nodes if node.op == "placeholder"]
-        if names.count(self.input_name) == 1 and all(name in tensors or name == self.input_name for name in names):
-            self.input_index = names.index(self.input_name)
+        inputs = [name for name in names if name in self.input_names]
+        if sorted(inputs) == sorted(self.input_names) and all(name in tensors or name in inputs for name in names):
+            self.input_indices = [names.index(name) for name in self.input_names]
             self.arguments = [tensors.get(name) for name in names]
         return self.compiled
 
-    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+    def __call__(self, *inputs: torch.Tensor) -> torch.Tensor:
         if self.arguments is None:
-            return self.traced(x)
+            return self.traced(*inputs)
         arguments = list(self.arguments)
-        arguments[self.input_index] = x
+        for index, value in zip(self.input_indices, inputs, strict=True):
+            arguments[index] = value
         return self.compiled(*arguments)[0]
 
 
@@ -141,20 +143,20 @@ def _mangled(name: str, kind: str) -> str:
 
 
 class CompiledPerShape:
-    """A module's forward through one :class:`ForwardProgram` per shape and dtype of its input: acting (K, 1, N),
+    """A module's forward through one :class:`ForwardProgram` per shape and dtype of its inputs: acting (K, 1, N),
     evaluation (K, E, N) and Proxy Target's regression targets each get their own program. Call it under
     ``torch.no_grad()`` only."""
 
     def __init__(self, module: nn.Module):
         self.module, self.programs = module, {}
 
-    def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        x = x.contiguous()  # a program assumes the layout it was compiled for: no guard checks it
-        key = (x.shape, x.dtype)
+    def __call__(self, *inputs: torch.Tensor) -> torch.Tensor:
+        inputs = tuple(x.contiguous() for x in inputs)  # a program assumes the layout it was compiled for
+        key = tuple((x.shape, x.dtype) for x in inputs)
         program = self.programs.get(key)
         if program is None:
             program = self.programs[key] = ForwardProgram(self.module)
-        return program(x)
+        return program(*inputs)
 
 
 class UpdateProgram:

@@ -60,15 +60,15 @@ def coloured_noise(beta: float, shape: tuple[int, ...], generator: torch.Generat
         raise ValueError(f"coloured noise needs at least 2 samples in time, got {samples}")
     scale_np, sigma = _spectrum_scales(beta, samples)
     scale = torch.as_tensor(scale_np, dtype=torch.float32)
-    spectrum_shape = (*shape[:-1], len(scale_np))
-    real = torch.randn(spectrum_shape, generator=generator) * scale
-    imaginary = torch.randn(spectrum_shape, generator=generator) * scale
-    imaginary[..., 0] = 0.0
-    real[..., 0] *= math.sqrt(2.0)
+    parts = torch.randn((*shape[:-1], len(scale_np), 2), generator=generator)  # real and imaginary parts
+    parts *= scale[:, None]
+    parts[..., 0, 1] = 0.0  # the DC term is real
+    parts[..., 0, 0] *= math.sqrt(2.0)
     if samples % 2 == 0:
-        imaginary[..., -1] = 0.0
-        real[..., -1] *= math.sqrt(2.0)
-    return torch.fft.irfft(torch.complex(real, imaginary), n=samples, dim=-1) / sigma
+        parts[..., -1, 1] = 0.0
+        parts[..., -1, 0] *= math.sqrt(2.0)
+    series = torch.fft.irfft(torch.view_as_complex(parts), n=samples, dim=-1)
+    return series.mul_(1.0 / sigma)
 
 
 def window_covariance(beta: float, samples: int, window: int) -> np.ndarray:
