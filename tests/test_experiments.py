@@ -14,7 +14,7 @@ from ilcsan.cli import main
 from ilcsan.errors import UserError
 from ilcsan.experiments.backends import RayBackend, ray_node_address
 from ilcsan.experiments.coordinator import run_grid
-from ilcsan.experiments.estimate import estimate_hours, list_tables
+from ilcsan.experiments.estimate import estimate_hours, list_tables, row_step_cost
 from ilcsan.experiments.grid import GridOptions, expand_grid
 from ilcsan.experiments.jobs import (
     Job,
@@ -175,7 +175,17 @@ def test_estimate_hours_runs_in_waves_of_cores():
     assert estimate_hours("intra", 100.0, 2) == pytest.approx(160 * 1e4 / 3600)
     assert estimate_hours("intra", 100.0, 320) == pytest.approx(1e4 / 3600)
     assert estimate_hours("intra", 100.0, 1000) == pytest.approx(1e4 / 3600), "idle cores do not help"
-    assert estimate_hours(TABLES["perf"], 200.0, 64) == pytest.approx(9 * 5000 / 3600)  # 560 runs: 9 waves
+    # perf: 480 spiking runs (cost 1) and 80 DAN runs (cost 0.6) of 5000 s on 64 cores, longest first: 32 cores take
+    # 8 spiking runs, 32 take 7; the DAN runs go to the least busy: 7.6 (32), then 8.2 (32), then 8.6 (16 cores)
+    assert estimate_hours(TABLES["perf"], 200.0, 64) == pytest.approx(8.6 * 5000 / 3600)
+
+
+def test_each_row_of_a_grid_costs_what_its_method_measured():
+    """beyond on one core: 5 seeds of ILC-SAN (1), Proxy Target with K = 3 (1 + 3.3), NoisySAN (1.75), DAN (0.6)."""
+    rows = {row.slug: row_step_cost(row) for row in TABLES["beyond"].rows}
+    assert rows == pytest.approx({"ilc-san": 1.0, "ilc-san+proxy": 4.3, "ilc-san+noisy": 1.75, "dan": 0.6})
+    assert estimate_hours("beyond", 100.0, 1) == pytest.approx(5 * (1 + 4.3 + 1.75 + 0.6) * 2000 / 3600)
+    assert estimate_hours("beyond", 100.0, 20) == pytest.approx(4.3 * 2000 / 3600)  # the slowest run decides
 
 
 # ------------------------------------------------------------------------------------------------

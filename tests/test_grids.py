@@ -38,10 +38,11 @@ def test_the_beyond_grid_sets_each_rows_training_method(tmp_path) -> None:
     spec = TABLES["beyond"]
     assert (spec.tasks, spec.seeds, spec.steps) == (("Hopper",), 5, 200_000)
     runs = expand_grid(spec, tmp_path).runs
-    methods = {(run.row.slug, run.config.actor.preset, run.config.td3.target_actor) for run in runs}
-    assert methods == {("ilc-san", "ilc-san", "spiking"), ("ilc-san+proxy", "ilc-san", "proxy"),
-                       ("dan", "dan", "spiking")}
-    assert len(runs) == 15
+    methods = {(run.row.slug, run.config.actor.preset, run.config.td3.target_actor, run.config.td3.exploration)
+               for run in runs}
+    assert methods == {("ilc-san", "ilc-san", "spiking", "gaussian"), ("ilc-san+proxy", "ilc-san", "proxy", "gaussian"),
+                       ("ilc-san+noisy", "ilc-san", "spiking", "noisy"), ("dan", "dan", "spiking", "gaussian")}
+    assert len(runs) == 20
 
 
 def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> None:
@@ -56,6 +57,15 @@ def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> Non
     with pytest.raises(UserError, match="own target"):
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
                               "rows": [{"slug": "dan", "preset": "dan", "td3": {"target_actor": "proxy"}}]})
+    noisy = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [
+        {"slug": "noisy", "preset": "ilc-san", "td3": {"exploration": "noisy", "noisy_beta": 2.0}}]})
+    assert noisy.rows[0].td3 == {"exploration": "noisy", "noisy_beta": 2.0}
+    with pytest.raises(UserError, match="no spiking neurons"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
+                              "rows": [{"slug": "dan", "preset": "dan", "td3": {"exploration": "noisy"}}]})
+    with pytest.raises(UserError, match="noisy-beta"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
+                              "rows": [{"slug": "n", "preset": "ilc-san", "td3": {"noisy_beta": -1.0}}]})
 
 
 @pytest.mark.parametrize("name", PAPER_TABLES)

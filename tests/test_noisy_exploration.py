@@ -68,7 +68,8 @@ def test_transmission_noise_reaches_the_intra_layer_connections_and_not_the_rese
     transmission = torch.tensor([[0.2, -0.1], [0.05, 0.3]]).reshape(1, 2, 1, 2)
     spikes = actor.layer_spikes(currents, output_layer=True, transmission=transmission)
     # t = 1: neuron 0 C = V' = 1.0 ≥ 0.5 fires (V → 0); neuron 1 C = V = 0.1, silent.
-    #        passed on: [1 + 0.2, 0 − 0.1]; I_2 = [0.5·1.2 + 1.0·(−0.1) + 0.1, 2.0·1.2 + 0.25·(−0.1) − 0.2] = [0.6, 2.175]
+    #        passed on: [1 + 0.2, 0 − 0.1];
+    #        I_2 = [0.5·1.2 + 1.0·(−0.1) + 0.1, 2.0·1.2 + 0.25·(−0.1) − 0.2] = [0.6, 2.175]
     # t = 2: neuron 0 C = 0.5 + 0.6 = 1.1, V' = 0 + 1.1 → fires; neuron 1 C = 0.05 + 2.175, V' = 0.075 + 2.225 → fires
     expected = torch.tensor([[1.2, -0.1], [1.05, 1.3]]).reshape(1, 2, 1, 2)
     assert torch.allclose(spikes, expected, atol=1e-6)

@@ -6,6 +6,7 @@ import math
 import os
 from collections.abc import Iterable
 
+from ..config import TD3Config
 from ..errors import UserError
 from .tables import TABLES, RowSpec, TableSpec
 
@@ -17,6 +18,16 @@ gives the user's own measurement. ``benchmarks/speed.py`` on a 2-core AMD EPYC (
 updates), 49 with the reference engine. The protocol's evaluations (10 episodes every 10 000 steps) run all
 episodes in lockstep, about one batched action and ten environment steps per evaluation step, which costs
 about 1 % of the training time."""
+
+DAN_STEP_COST = 0.6
+"""Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper): 133/233 on the AMD
+and 219/365 on the Intel machine of benchmarks/RESULTS.md."""
+PROXY_COST_PER_ITERATION = 1.1
+"""Proxy Target adds about this much of ILC-SAN's step time per regression step K (benchmarks/methods.py, Intel,
+compiled: 2.0× with K = 1 and 4.3× with K = 3, i.e. ≈ 1 + 1.1·K)."""
+NOISY_STEP_COST = 1.75
+"""NoisySAN exploration's step time relative to ILC-SAN's (benchmarks/methods.py, Intel, compiled: 0.57× the
+steps/s)."""
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 EXAMPLE_CLUSTER_CORES = 64
@@ -37,20 +48,38 @@ def steps_per_second_default() -> float:
     return value
 
 
+def row_step_cost(row: RowSpec) -> float:
+    """A row's time per environment step relative to plain ILC-SAN's: DAN is cheaper, Proxy Target and NoisySAN
+    dearer (the constants above, measured); every other spiking row counts as 1."""
+    if row.preset == "dan":
+        return DAN_STEP_COST
+    cost = 1.0
+    if row.td3.get("target_actor") == "proxy":
+        cost += PROXY_COST_PER_ITERATION * row.td3.get("proxy_iterations", TD3Config.proxy_iterations)
+    if row.td3.get("exploration") == "noisy":
+        cost *= NOISY_STEP_COST
+    return cost
+
+
 def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) -> float:
     """Wall-clock hours to run a whole table on ``cores`` cores, one run per core at a time.
 
-    Each run takes ``steps / steps_per_second`` seconds (``steps_per_second`` measured for one run on one
-    core, evaluations included); the runs go in waves of ``cores``: ceil(runs / cores) waves. Training the
-    seeds of a cell together (as ``reproduce`` does) is faster in aggregate, so this is an upper estimate
-    for that part, while the tasks larger than Hopper (Ant, Humanoid) are slower than the measured run.
+    A run takes ``steps × cost / steps_per_second`` seconds (``steps_per_second`` measured for one ILC-SAN run on
+    one core, evaluations included; ``cost`` its row's :func:`row_step_cost`); the runs are dealt longest first
+    to the least busy core, and the estimate is the busiest core's total (with equal runs: ceil(runs / cores)
+    waves). Training the seeds of a cell together (as ``reproduce`` does) is faster in aggregate, so this is an
+    upper estimate for that part, while the tasks larger than Hopper (Ant, Humanoid) are slower than the measured
+    run.
     """
     spec = TABLES[table] if isinstance(table, str) else table
     if steps_per_second <= 0 or cores < 1:
         raise ValueError("steps_per_second must be positive and cores at least 1")
-    runs = len(spec.runs())
-    waves = math.ceil(runs / cores)
-    return waves * spec.steps / steps_per_second / 3600
+    costs = sorted((row_step_cost(row) for _, row, _ in spec.runs()), reverse=True)
+    loads = [0.0] * min(cores, max(1, len(costs)))
+    for cost in costs:
+        index = loads.index(min(loads))
+        loads[index] += cost
+    return max(loads) * spec.steps / steps_per_second / 3600
 
 
 def _row_switches(row: RowSpec) -> str:
@@ -91,6 +120,7 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
     blocks = [describe_table(spec, speed, cores) for spec in (specs or TABLES.values())]
     footer = (f"Estimates assume {speed:g} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
               f"evaluations included; set {STEPS_PER_SECOND_ENV} to your own measurement) and one run per core; "
-              "hours = ceil(runs / cores) × steps / (steps/s) / 3600. Shrink a table with --seeds, --steps, "
+              "a run's hours = steps × its row's cost / (steps/s) / 3600 (DAN 0.6, Proxy Target 1 + 1.1·K, NoisySAN "
+              "1.75, measured), dealt longest first to the cores. Shrink a table with --seeds, --steps, "
               "--tasks, --rows; run it on a cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])
