@@ -220,30 +220,12 @@ def test_the_options_parse_are_saved_in_config_json_and_bad_values_are_one_line(
                  "--out", str(tmp_path / "dan")]) == 2
 
 
-def tiny_noisy_run(**overrides) -> RunConfig:
-    td3 = TD3Config(start_steps=100, update_after=100, update_every=25, batch_size=16, exploration="noisy",
-                    noisy_return_reference=1000.0)
-    values = dict(task="Pendulum-v1", seeds=(0, 1), steps=450, eval_every=150, eval_episodes=1,
-                  actor=SMALL_ACTOR, td3=td3, threads=1)
-    values.update(overrides)
-    return RunConfig(**values)
-
-
 def test_an_interrupted_noisy_run_resumes_to_the_same_curve_and_noise(tmp_path, monkeypatch):
     """Interrupted mid-episode: the resumed run draws the same series again and reads on from the same sample."""
-    from test_training import interrupt_after_first_checkpoint, read_metrics
+    from test_training import assert_resumes_to_the_same_curve, tiny_method_run
 
-    config = tiny_noisy_run()
-    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
-    interrupt_after_first_checkpoint(config, tmp_path / "interrupted", monkeypatch)
-    train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
-    for seed in (0, 1):
-        straight = read_metrics(tmp_path / "straight" / f"seed{seed}" / "metrics.csv")
-        resumed = read_metrics(tmp_path / "interrupted" / f"seed{seed}" / "metrics.csv")
-        assert len(straight) == 3
-        assert [r["eval_return_mean"] for r in resumed] == [r["eval_return_mean"] for r in straight]
-        states = [torch.load(tmp_path / run / f"seed{seed}" / "checkpoint.pt", weights_only=True)
-                  for run in ("straight", "interrupted")]
-        assert torch.equal(states[0]["exploration"]["parameters"]["decoder_sigma"],
-                           states[1]["exploration"]["parameters"]["decoder_sigma"])
-        assert states[0]["exploration"]["streams"]["cursor"] == states[1]["exploration"]["streams"]["cursor"] > 0
+    config = tiny_method_run(start_steps=100, exploration="noisy", noisy_return_reference=1000.0)
+    for straight, resumed in assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch):
+        assert torch.equal(straight["exploration"]["parameters"]["decoder_sigma"],
+                           resumed["exploration"]["parameters"]["decoder_sigma"])
+        assert straight["exploration"]["streams"]["cursor"] == resumed["exploration"]["streams"]["cursor"] > 0

@@ -130,29 +130,13 @@ def test_the_options_parse_and_are_saved_in_config_json(tmp_path):
         build_run_config(build_parser().parse_args(["train", "--target-actor", "ann"]))
 
 
-def tiny_proxy_run(**overrides) -> RunConfig:
-    td3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16, target_actor="proxy",
-                    proxy_iterations=2)
-    values = dict(task="Pendulum-v1", seeds=(0, 1), steps=450, eval_every=150, eval_episodes=1,
-                  actor=SMALL_ACTOR, td3=td3, threads=1)
-    values.update(overrides)
-    return RunConfig(**values)
-
-
 def test_an_interrupted_proxy_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
-    from test_training import interrupt_after_first_checkpoint, read_metrics
+    from test_training import assert_resumes_to_the_same_curve, tiny_method_run
 
-    config = tiny_proxy_run()
-    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
-    interrupt_after_first_checkpoint(config, tmp_path / "interrupted", monkeypatch)
-    train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
-    for seed in (0, 1):
-        straight = read_metrics(tmp_path / "straight" / f"seed{seed}" / "metrics.csv")
-        resumed = read_metrics(tmp_path / "interrupted" / f"seed{seed}" / "metrics.csv")
-        assert len(straight) == 3
-        assert [r["eval_return_mean"] for r in resumed] == [r["eval_return_mean"] for r in straight]
-    state = torch.load(tmp_path / "interrupted" / "seed1" / "checkpoint.pt", weights_only=True)
-    assert state["config"]["td3"]["target_actor"] == "proxy" and state["proxy_optimizer"]
+    config = tiny_method_run(target_actor="proxy", proxy_iterations=2)
+    checkpoints = assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch)
+    resumed = checkpoints[1][1]
+    assert resumed["config"]["td3"]["target_actor"] == "proxy" and resumed["proxy_optimizer"]
 
 
 def test_a_compiled_proxy_agent_updates_like_the_eager_one():

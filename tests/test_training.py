@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -151,6 +152,30 @@ def interrupt_after_first_checkpoint(config, out, monkeypatch) -> None:
     with pytest.raises(KeyboardInterrupt):
         train(config, out, progress=False, log=lambda *_: None)
     monkeypatch.setattr(Trainer, "_write_checkpoints", original)
+
+
+def tiny_method_run(**td3_options) -> RunConfig:
+    """Two stacked seeds on Pendulum, 450 steps, an evaluation every 150: for checking that a training method
+    (``td3_options``, e.g. ``target_actor="proxy"``) resumes exactly."""
+    td3 = dataclasses.replace(TINY_TD3, **td3_options)
+    return tiny_run(seeds=(0, 1), steps=450, td3=td3)
+
+
+def assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch) -> list[tuple[dict, dict]]:
+    """Train ``config`` straight and interrupted-then-resumed: every seed's evaluations must be equal. Returns each
+    seed's final checkpoints (straight, resumed) for the caller's own checks."""
+    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
+    interrupt_after_first_checkpoint(config, tmp_path / "interrupted", monkeypatch)
+    train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
+    checkpoints = []
+    for seed in config.seeds:
+        straight = read_metrics(tmp_path / "straight" / f"seed{seed}" / "metrics.csv")
+        resumed = read_metrics(tmp_path / "interrupted" / f"seed{seed}" / "metrics.csv")
+        assert len(straight) == config.steps // config.eval_every
+        assert [r["eval_return_mean"] for r in resumed] == [r["eval_return_mean"] for r in straight]
+        checkpoints.append(tuple(torch.load(tmp_path / run / f"seed{seed}" / "checkpoint.pt", weights_only=True)
+                                 for run in ("straight", "interrupted")))
+    return checkpoints
 
 
 def assert_same_updates(eager, compiled, batches, atol: float) -> None:
