@@ -28,9 +28,12 @@ PATHS = [path for path in FLOAT32_PATHS if path != "onednn" or onednn_available(
 
 @pytest.fixture
 def restore_path():
-    before = matmul_path()
+    """Put back the process's matmul path and torch's float32 matmul precision (a bf16 run sets "medium", which on
+    a CPU with AMX makes every later float32 product bfloat16)."""
+    before, precision = matmul_path(), torch.get_float32_matmul_precision()
     yield
     use_matmul_path(before)
+    torch.set_float32_matmul_precision(precision)
 
 
 @pytest.mark.parametrize("path", [*PATHS, "bf16"])

@@ -110,7 +110,7 @@ class ForwardProgram:
 
     def __init__(self, module: nn.Module):
         self.module, self.compiled, self.arguments = module, None, None
-        self.input_names = ["l_" + name + "_" for name in inspect.signature(module.forward).parameters]
+        self.parameter_names = ["l_" + name + "_" for name in inspect.signature(module.forward).parameters]
         self.traced = torch.compile(with_own_code(module.forward), fullgraph=True, dynamic=False,
                                     backend=self._compile)
 
@@ -121,9 +121,10 @@ class ForwardProgram:
         tensors = {f"l_self_{_mangled(name, 'parameters')}": p for name, p in self.module.named_parameters()}
         tensors.update({f"l_self_{_mangled(name, 'buffers')}": b for name, b in self.module.named_buffers()})
         names = [node.name for node in graph.graph.nodes if node.op == "placeholder"]
-        inputs = [name for name in names if name in self.input_names]
-        if sorted(inputs) == sorted(self.input_names) and all(name in tensors or name in inputs for name in names):
-            self.input_indices = [names.index(name) for name in self.input_names]
+        # the forward's tensor arguments, in its signature's order (an argument left at None is no placeholder)
+        inputs = [name for name in self.parameter_names if name in names]
+        if inputs and all(name in tensors or name in inputs for name in names):
+            self.input_indices = [names.index(name) for name in inputs]
             self.arguments = [tensors.get(name) for name in names]
         return self.compiled
 
