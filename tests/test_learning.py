@@ -58,9 +58,10 @@ def test_ilc_san_learns_pendulum_with_a_proxy_target(tmp_path):
 def test_ilc_san_learns_pendulum_with_noisysan_exploration(tmp_path):
     """NoisySAN (--exploration noisy: pink noise in every neuron, no action noise) learns more erratically on this
     task (its decoder noise starts at σ_d = 0.5 on Pendulum's single action and is summed over T steps), so it gets
-    8 000 steps: measured −1100, −878, −149, −1035, −541 at steps 5 000-9 000 (best −149); an earlier draw of the
-    noise gave −465 at 6 000. Pendulum's returns are negative, so the noise penalty's weight max(0, R)/R* stays 0:
-    σ_d moves by the critic's gradient alone. The frozen actor above is the control."""
+    8 000 steps: a 10 000-step run of the same settings measured −1100, −878, −149, −1035, −541 at steps
+    5 000-9 000 (best −149); an earlier draw of the noise gave −465 at 6 000. Pendulum's returns are negative, so
+    the noise penalty's weight max(0, R)/R* stays 0: σ_d moves by the critic's gradient alone. The frozen actor
+    above is the control."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=8000, eval_every=1000, eval_episodes=5,
                        actor=actor_config("ilc-san"),
                        td3=TD3Config(start_steps=1000, update_after=1000, exploration="noisy",

@@ -309,6 +309,17 @@ class TD3Config:
         data["critic_hidden"] = list(self.critic_hidden)
         return data
 
+    def check_network(self, network: str) -> None:
+        """UserError if a training method chosen here needs a spiking actor and ``network`` is DAN's (deep)."""
+        if network == "spiking":
+            return
+        if self.target_actor != "spiking":
+            raise UserError("--target-actor proxy replaces a spiking actor's target by a continuous proxy; DAN is "
+                            "continuous already and keeps TD3's own target: drop --target-actor for DAN")
+        if self.exploration != "gaussian":
+            raise UserError("--exploration noisy puts noise into spiking neurons; DAN has no spiking neurons to put "
+                            "noise in and explores with TD3's action noise: drop --exploration for DAN")
+
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TD3Config:
         values = dict(data)

@@ -338,14 +338,11 @@ def _row_td3(item: Mapping[str, Any], preset: str, where: str) -> dict[str, Any]
     td3 = item.get("td3", {})
     _check_keys(td3, ROW_TD3_KEYS, f"{where}: td3")
     try:
-        check_settings(TD3Config(**td3))
+        settings = TD3Config(**td3)
+        check_settings(settings)
+        settings.check_network("deep" if preset == "dan" else "spiking")
     except (UserError, TypeError) as error:
         raise UserError(f"{where}: td3: {error}") from None
-    if preset == "dan" and td3.get("target_actor", "spiking") != "spiking":
-        raise UserError(f"{where}: td3: the deep actor (preset 'dan') keeps TD3's own target actor")
-    if preset == "dan" and td3.get("exploration", "gaussian") != "gaussian":
-        raise UserError(f"{where}: td3: the deep actor (preset 'dan') has no spiking neurons to put noise in; "
-                        "it explores with TD3's action noise")
     return dict(td3)
 
 

@@ -64,7 +64,7 @@ class NoisyExploration(nn.Module):
                  reference_return: float, episode_steps: int | None, seeds: Sequence[int], learning_rate: float,
                  device: torch.device):
         super().__init__()
-        self.widths, self.action_dim, self.timesteps = tuple(widths), action_dim, timesteps
+        self.widths, self.timesteps = tuple(widths), timesteps
         self.layer_sigmas = tuple(td3.noisy_sigma / math.sqrt(width) for width in self.widths)
         self.decoder_sigma = nn.Parameter(torch.full((len(seeds), action_dim), td3.noisy_sigma / math.sqrt(action_dim),
                                                      device=device))

@@ -26,13 +26,8 @@ def validate_run(config: RunConfig) -> None:
     (:func:`~ilcsan.config.check_settings`), then what needs this process (seeds, threads, the device)."""
     check_settings(config)
     check_settings(config.td3)
-    if config.td3.target_actor == "proxy" and config.actor.network != "spiking":
-        raise UserError("--target-actor proxy replaces a spiking actor's target by a continuous proxy; DAN is "
-                        "continuous already and keeps TD3's own target: drop --target-actor for DAN")
+    config.td3.check_network(config.actor.network)
     if config.td3.exploration == "noisy":
-        if config.actor.network != "spiking":
-            raise UserError("--exploration noisy puts noise into spiking neurons; DAN has none and explores with "
-                            "TD3's action noise: drop --exploration for DAN")
         return_reference(config.task, config.td3)
     if not config.seeds:
         raise UserError("give at least one seed")
