@@ -255,10 +255,20 @@ def test_grid_runs_locally_survives_an_interruption_and_reports(tmp_path, monkey
 def test_a_run_made_with_other_settings_stops_the_grid_before_it_starts(tmp_path):
     grid = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=(0,), steps=150)
     run = grid.runs[0]
-    train(dataclasses.replace(run.config, steps=150), run.directory, progress=False, **QUIET)
-    other = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=(0,), steps=300)
-    with pytest.raises(UserError, match=r"other settings \(steps\)"):
-        run_grid(other, "local", workers=1, **QUIET)
+    train(dataclasses.replace(run.config, eval_episodes=2), run.directory, progress=False, **QUIET)
+    with pytest.raises(UserError, match=r"other settings \(eval_episodes\)"):
+        run_grid(grid, "local", workers=1, **QUIET)
+
+
+def test_a_grid_with_a_larger_budget_extends_its_finished_runs(tmp_path):
+    short = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=(0,), steps=150)
+    run_grid(short, "local", workers=1, write_report=False, **QUIET)
+    longer = tiny_grid(tmp_path, tasks=("Pendulum-v1",), rows=("ilc",), seeds=(0,), steps=300)
+    assert run_state(longer.runs[0].directory, longer.runs[0].config) == RunState("partial", 150)
+    outcome = run_grid(longer, "local", workers=1, write_report=False, **QUIET)
+    assert outcome.finished == 1 and outcome.skipped == 0
+    result = json.loads((longer.runs[0].directory / "result.json").read_text())
+    assert result["finished"] and result["steps_done"] == 300
 
 
 class FlakyBackend:

@@ -116,7 +116,7 @@ def test_malicious_checkpoint_on_resume_is_refused_and_never_run(run_copy, tmp_p
     (("--actor", "popsan"), "different settings (actor)"),
     (("--task", "MountainCarContinuous-v0"), "different settings (task"),
     (("--hidden-width", "32"), "different settings (actor)"),
-    (("--steps", "450"), "different settings (steps)"),
+    (("--steps", "150"), "checkpoint is at step 300, past --steps 150"),
 ])
 def test_checkpoint_of_another_actor_task_or_run_is_refused(run_copy, capsys, options, fragment):
     before = (run_copy / "checkpoint.pt").read_bytes()

@@ -207,6 +207,23 @@ def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
     assert result["finished"] and result["steps_done"] == 450
 
 
+def test_a_finished_run_resumed_with_a_larger_budget_continues_as_if_started_with_it(tmp_path):
+    train(tiny_run(steps=450), tmp_path / "straight", progress=False, log=lambda *_: None)
+    train(tiny_run(steps=300), tmp_path / "extended", progress=False, log=lambda *_: None)
+    lines = []
+    train(tiny_run(steps=450), tmp_path / "extended", resume=True, progress=False, log=lines.append)
+    assert any("budget: 300 → 450 steps" in line for line in lines)
+    straight = read_metrics(tmp_path / "straight" / "metrics.csv")
+    extended = read_metrics(tmp_path / "extended" / "metrics.csv")
+    assert len(straight) == 3
+    assert [r["eval_return_mean"] for r in extended] == [r["eval_return_mean"] for r in straight]
+    assert json.loads((tmp_path / "extended" / "config.json").read_text())["steps"] == 450
+    result = json.loads((tmp_path / "extended" / "result.json").read_text())
+    assert result["finished"] and result["steps_done"] == 450
+    with pytest.raises(UserError, match="at step 450, past --steps 300; give --steps 450 or more"):
+        train(tiny_run(steps=300), tmp_path / "extended", resume=True, progress=False, log=lambda *_: None)
+
+
 def test_resume_refuses_a_run_with_other_settings(tmp_path):
     train(tiny_run(), tmp_path / "run", progress=False, log=lambda *_: None)
     other = tiny_run(actor=actor_config("popsan", hidden=(16, 16)))

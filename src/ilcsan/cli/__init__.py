@@ -53,7 +53,8 @@ def _add_train_command(subparsers) -> None:
     _add_actor_switches(train)
     _add_run_options(train)
     train.add_argument("--out", help="run directory (default runs/<task>-<actor>-s<seeds>)")
-    train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    train.add_argument("--resume", action="store_true",
+                       help="continue the run in --out from its last checkpoint (a larger --steps extends it)")
     train.add_argument("--label", help="row label for reports (default: the preset)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar (one line per evaluation)")
     train.set_defaults(handler=commands.cmd_train)

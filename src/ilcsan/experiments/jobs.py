@@ -20,14 +20,12 @@ from typing import Any, Literal
 from ..config import RunConfig
 from ..errors import TrainingDiverged, UserError
 from ..rl.memory import physical_memory, replay_bytes
+from ..runs.checkpoint import RESUME_SETTINGS
 from ..runs.directory import CONFIG, RunDirectory
 from .grid import Grid, GridRun, run_key, task_folder
 
 MEMORY_FRACTION = 0.7
 """Share of the machine's memory the replay buffers of all worker processes may take together."""
-
-SETTINGS_COMPARED = ("task", "actor", "td3", "steps", "eval_every", "eval_episodes")
-"""The settings a run on disk must share with the grid to be skipped or resumed (as the trainer checks)."""
 
 
 # ------------------------------------------------------------------------------------ runs on disk
@@ -46,7 +44,8 @@ def run_state(directory: Path, config: RunConfig) -> RunState:
     """Read a run's folder; refuse (UserError) a run made with other settings than ``config``'s.
 
     A finished run is one whose ``result.json`` says ``finished`` after all of ``config.steps``; an
-    unreadable ``result.json`` counts as none (the checkpoint decides)."""
+    unreadable ``result.json`` counts as none (the checkpoint decides). A run on disk with a smaller budget
+    than the grid's is partial: it resumes from its last checkpoint to the grid's budget."""
     run = RunDirectory(directory)
     if run.file(CONFIG).exists():
         check_same_settings(directory, config)
@@ -60,7 +59,7 @@ def run_state(directory: Path, config: RunConfig) -> RunState:
 def check_same_settings(directory: Path, config: RunConfig) -> None:
     """UserError unless the run in ``directory`` was started with ``config``'s settings."""
     saved = RunDirectory(directory).run_config()
-    differing = [name for name in SETTINGS_COMPARED if getattr(saved, name) != getattr(config, name)]
+    differing = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(config, name)]
     if differing:
         raise UserError(f"{directory} was run with other settings ({', '.join(differing)}) than this grid; "
                         "repeat the options it was started with, or choose another --out")

@@ -25,8 +25,10 @@ from .directory import CHECKPOINT, RunDirectory
 CHECKPOINT_FORMAT = "ilcsan-checkpoint"
 POLICY_FORMAT = "ilcsan-policy"
 FORMAT_VERSION = 1
-RESUME_SETTINGS = ("task", "actor", "td3", "steps", "eval_every", "eval_episodes")
-"""The settings a resumed run must share with its checkpoint."""
+RESUME_SETTINGS = ("task", "actor", "td3", "eval_every", "eval_episodes")
+"""The settings a resumed run must share with its checkpoint. The budget (``steps``) may change: a run resumed
+with a larger ``--steps`` continues to it exactly as a run started with that budget would have (nothing in
+training depends on the budget but where it stops), so a finished 200 000-step run extends to 1 000 000."""
 
 
 # ----------------------------------------------------------------------------- per-seed slices
@@ -218,6 +220,9 @@ def check_resumable(directory: RunDirectory, state: dict[str, Any], config: RunC
                         "with the same command, or choose another --out")
     if state["state_dim"] != state_dim or state["action_dim"] != action_dim:
         raise UserError(f"{directory.path}'s checkpoint was made for another task shape")
+    if state["step"] > config.steps:
+        raise UserError(f"{directory.path}'s checkpoint is at step {state['step']}, past --steps {config.steps}; "
+                        f"give --steps {state['step']} or more")
 
 
 # ------------------------------------------------------------------------- a trainer's state
@@ -272,6 +277,14 @@ class TrainingCheckpoints:
         for directory, seed in zip(self.directories, config.seeds, strict=True):
             directory.write_config(config, seed, measured)
 
+    def _record_budget(self, config: RunConfig, saved_steps: int) -> None:
+        """A run resumed with another budget says so, and its config.json records the new one."""
+        if saved_steps == config.steps:
+            return
+        self.log(f"budget: {saved_steps} → {config.steps} steps (the run continues as if started with {config.steps})")
+        for directory in self.directories:
+            directory.write_budget(config.steps)
+
     def save(self, trainer: Any) -> None:
         """Segments, metrics, then the checkpoints (committed together), then result.json: a crash anywhere
         keeps the previous checkpoint, and result.json never says "finished" before the final checkpoint."""
@@ -320,6 +333,7 @@ class TrainingCheckpoints:
         steps = {state["step"] for state in states}
         if len(steps) != 1:
             raise UserError(f"the seeds' checkpoints are at different steps ({sorted(steps)}); resume them one by one")
+        self._record_budget(trainer.config, RunConfig.from_dict(states[0]["config"]).steps)
         load_agent(trainer.agent, states)
         trainer.step, trainer.wall_seconds = states[0]["step"], float(states[0]["wall_seconds"])
         for index, (directory, state) in enumerate(zip(self.directories, states, strict=True)):

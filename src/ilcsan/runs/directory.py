@@ -139,6 +139,10 @@ class RunDirectory:
         """config.json: the seed's settings, plus ``measured`` (machine-dependent choices; readers ignore them)."""
         atomic_write_json(self.file(CONFIG), {**config.for_seed(seed), **(measured or {})})
 
+    def write_budget(self, steps: int) -> None:
+        """Set config.json's ``steps`` (a run resumed with another budget), keeping everything else in it."""
+        atomic_write_json(self.file(CONFIG), {**self.config_object(), "steps": steps})
+
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         buffer = io.StringIO()
         writer = csv.DictWriter(buffer, fieldnames=METRIC_FIELDS, extrasaction="ignore", lineterminator="\n")
