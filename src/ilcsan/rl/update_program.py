@@ -56,16 +56,24 @@ def adam_state(optimizer: torch.optim.Optimizer, params: Sequence[nn.Parameter])
 def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], averages: Sequence[torch.Tensor],
           squares: Sequence[torch.Tensor], steps: Sequence[torch.Tensor], lr: float) -> None:
     """One Adam step in place, torch.optim.Adam's rule (no weight decay, no amsgrad):
-    t ← t + 1;  m ← β₁m + (1 − β₁)g;  v ← β₂v + (1 − β₂)g²;  θ ← θ − lr/(1 − β₁ᵗ) · m / (√v / √(1 − β₂ᵗ) + ε)."""
+    t ← t + 1;  m ← β₁m + (1 − β₁)g;  v ← β₂v + (1 − β₂)g²;  θ ← θ − lr/(1 − β₁ᵗ) · m / (√v / √(1 − β₂ᵗ) + ε).
+
+    torch.optim.Adam counts t per parameter; one optimizer's parameters step together, so their counts are
+    equal and the two bias corrections are computed once, as a reduction over all the counts. Written per
+    parameter, inductor fuses two scalar ``pow`` calls into every 16-wide iteration of every parameter's loop;
+    a reduction is always computed into a buffer of its own, which the loops then only read (Hopper, one
+    thread: an ILC-SAN update 4.4 → 3.9-4.0 ms).
+    """
     beta1, beta2 = ADAM_BETAS
-    for param, grad, average, square, step in zip(params, grads, averages, squares, steps, strict=True):
+    for step in steps:
         step.add_(1.0)
+    counts = torch.stack(list(steps))
+    step_size = (lr / (1.0 - beta1 ** counts)).amax()
+    root_correction2 = (1.0 - beta2 ** counts).sqrt().amax()
+    for param, grad, average, square in zip(params, grads, averages, squares, strict=True):
         average.lerp_(grad, 1.0 - beta1)
         square.mul_(beta2).addcmul_(grad, grad, value=1.0 - beta2)
-        correction1 = 1.0 - beta1 ** step
-        correction2 = 1.0 - beta2 ** step
-        denominator = square.sqrt() / correction2.sqrt() + ADAM_EPS
-        param.sub_(lr * average / (correction1 * denominator))
+        param.sub_(step_size * average / (square.sqrt() / root_correction2 + ADAM_EPS))
 
 
 PROGRAM_OPTIONS = {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe, "cpp_wrapper": True}
