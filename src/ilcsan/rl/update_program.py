@@ -59,10 +59,12 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
     t ← t + 1;  m ← β₁m + (1 − β₁)g;  v ← β₂v + (1 − β₂)g²;  θ ← θ − lr/(1 − β₁ᵗ) · m / (√v / √(1 − β₂ᵗ) + ε).
 
     torch.optim.Adam counts t per parameter; one optimizer's parameters step together, so their counts are
-    equal and the two bias corrections are computed once, as a reduction over all the counts. Written per
-    parameter, inductor fuses two scalar ``pow`` calls into every 16-wide iteration of every parameter's loop;
-    a reduction is always computed into a buffer of its own, which the loops then only read (Hopper, one
-    thread: an ILC-SAN update 4.4 → 3.9-4.0 ms).
+    equal and the two bias corrections are computed once, from all the counts (their maximum). Written per
+    parameter, inductor fuses two scalar ``pow`` calls into every 16-wide iteration of every parameter's loop.
+    A value that reads several buffers (more than ``torch._inductor.config.realize_reads_threshold``, 4) and is
+    used by several loops is computed into a buffer of its own, which the loops then only read (the generated
+    code has no ``pow`` left in them; Hopper, one thread: an ILC-SAN update 4.4 → 3.9-4.0 ms). Networks with
+    fewer parameter tensors get the per-iteration ``pow`` back: slower, equal.
     """
     beta1, beta2 = ADAM_BETAS
     for step in steps:
