@@ -171,7 +171,7 @@ def test_a_compiled_noisy_agent_updates_like_the_eager_one():
     for _ in range(3):  # exploring: the same noise windows, the learned σ_d read in place by the compiled program
         assert np.allclose(eager.explore(states), compiled.explore(states), atol=1e-5)
     (program,) = compiled.exploring_fn.programs.values()
-    assert program.arguments is not None  # called directly, its inputs resolved to the agent's own tensors
+    assert program.direct  # called directly, its inputs resolved to the agent's own tensors
 
 
 def test_each_seed_of_a_stacked_noisy_run_explores_and_updates_like_a_single_run():

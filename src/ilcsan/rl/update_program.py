@@ -20,9 +20,8 @@ generators, and passed in (the same random stream as the eager update).
 
 from __future__ import annotations
 
-import inspect
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
 import torch
@@ -78,24 +77,6 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
         param.sub_(step_size * average / (square.sqrt() / root_correction2 + ADAM_EPS))
 
 
-PROGRAM_OPTIONS = {"guard_filter_fn": torch.compiler.skip_all_guards_unsafe, "cpp_wrapper": True}
-"""No guards (see :func:`compile_program`) and inductor's C++ wrapper, which calls the kernels from C++ instead of
-a Python function: measured on Hopper (one thread), an ILC-SAN update 6.16 → 5.88 ms and a batch-1 action
-103 → 81 µs, for ~10 s more of first compilation."""
-
-
-def compile_program(function: Callable) -> Callable:
-    """``torch.compile(fullgraph=True)`` of a function or bound method, with its own compile cache and no guards.
-
-    Dynamo keeps its compiled graphs on the function's code object and checks guards (module attributes,
-    every input tensor's shape and stride) on each call: hundreds of microseconds for a program of ~60
-    tensors. A program here is built for one agent and one set of input shapes that never change, so the
-    guards are skipped, and the function is rebuilt on a fresh code object so that another program (other
-    shapes, other constants) gets its own graphs instead of this one's.
-    """
-    return torch.compile(with_own_code(function), fullgraph=True, dynamic=False, options=PROGRAM_OPTIONS)
-
-
 def with_own_code(function: Callable) -> Callable:
     """The same function or bound method on a fresh code object, so that dynamo keeps a separate cache for it."""
     bound_to = getattr(function, "__self__", None)
@@ -106,55 +87,87 @@ def with_own_code(function: Callable) -> Callable:
     return own if bound_to is None else types.MethodType(own, bound_to)
 
 
-class ForwardProgram:
-    """A module's forward pass for one set of input shapes: traced once by dynamo, compiled by inductor, then called
-    directly, without dynamo.
+def tensor_leaves(value, leaves: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
+    """The tensors in ``value`` (nested dicts, lists and tuples; anything else skipped), in order."""
+    leaves = [] if leaves is None else leaves
+    if isinstance(value, torch.Tensor):
+        leaves.append(value)
+    elif isinstance(value, dict):
+        for item in value.values():
+            tensor_leaves(item, leaves)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            tensor_leaves(item, leaves)
+    return leaves
 
-    Entering a dynamo-compiled function costs ~30-60 µs even without guards: most of a ~100 µs batch-1 action.
-    The compiled callable's inputs are the traced graph's placeholders — the forward's tensor arguments and the
-    module's parameters and buffers, named after their paths (``l_self_modules_layers_modules_0_parameters_weight_``)
-    — so the program collects those tensors once (parameters are updated in place for the agent's life) and
-    afterwards calls inductor's code with them and the new inputs. If a placeholder is not one of them, every call
-    keeps going through dynamo. Call it under ``torch.no_grad()`` only.
+
+def module_tensors(module: nn.Module) -> list[torch.Tensor]:
+    """``module``'s parameters and buffers."""
+    return [*module.parameters(), *module.buffers()]
+
+
+class DirectProgram:
+    """``function`` for one structure and set of shapes of its arguments: traced once by dynamo, compiled by
+    inductor, then inductor's code called directly, without dynamo.
+
+    Entering a dynamo-compiled function costs ~30-60 µs for a batch-1 action and ~250 µs for the update program
+    (its bytecode fetches ~150 tensors from dicts and lists), even without guards. The compiled callable's inputs
+    are the traced graph's placeholders, each a tensor the call reached: a leaf of the arguments (dicts, lists and
+    tuples of tensors) or one of ``constants``, tensors it reads as attributes that stay the same objects for the
+    program's life (parameters and buffers, updated in place; the action bounds). The first call records, by
+    identity, which leaf position or which constant each placeholder is; later calls pass the leaves at those
+    positions (so new tensors in the same places — a new batch, an optimizer state loaded from a checkpoint — are
+    used) and the constants themselves. If a placeholder is neither,
+    every call keeps going through dynamo (``direct`` is False), without guards: the program is built for one
+    agent and one set of shapes that never change. ``function`` is rebuilt on a fresh code object
+    (:func:`with_own_code`), because dynamo keeps its compiled graphs on the code object, so that another program
+    (other shapes, other constants) gets its own graphs instead of this one's. Call it under ``torch.no_grad()``
+    only.
     """
 
-    def __init__(self, module: nn.Module):
-        self.module, self.compiled, self.arguments = module, None, None
-        self.parameter_names = ["l_" + name + "_" for name in inspect.signature(module.forward).parameters]
-        self.traced = torch.compile(with_own_code(module.forward), fullgraph=True, dynamic=False,
-                                    backend=self._compile)
+    def __init__(self, function: Callable, constants: Iterable[torch.Tensor] = ()):
+        self.constants = {id(tensor) for tensor in constants}
+        self.compiled, self.example_inputs, self.slots, self.fixed, self.output_tuple = None, None, None, None, False
+        self.traced = torch.compile(with_own_code(function), fullgraph=True, dynamic=False, backend=self._compile,
+                                    options={"guard_filter_fn": torch.compiler.skip_all_guards_unsafe})
+
+    @property
+    def direct(self) -> bool:
+        return self.slots is not None
 
     def _compile(self, graph: torch.fx.GraphModule, example_inputs: list) -> Callable:
+        """Inductor with its C++ wrapper, which calls the kernels from C++ instead of a Python function (measured
+        on Hopper, one thread: an ILC-SAN update 6.16 → 5.88 ms, a batch-1 action 103 → 81 µs, for ~10 s more
+        of first compilation)."""
         from torch._inductor.compile_fx import compile_fx
 
         self.compiled = compile_fx(graph, example_inputs, config_patches={"cpp_wrapper": True})
-        tensors = {f"l_self_{_mangled(name, 'parameters')}": p for name, p in self.module.named_parameters()}
-        tensors.update({f"l_self_{_mangled(name, 'buffers')}": b for name, b in self.module.named_buffers()})
-        names = [node.name for node in graph.graph.nodes if node.op == "placeholder"]
-        # the forward's tensor arguments, in its signature's order (an argument left at None is no placeholder)
-        inputs = [name for name in self.parameter_names if name in names]
-        if inputs and all(name in tensors or name in inputs for name in names):
-            self.input_indices = [names.index(name) for name in inputs]
-            self.arguments = [tensors.get(name) for name in names]
+        self.example_inputs = list(example_inputs)
         return self.compiled
 
-    def __call__(self, *inputs: torch.Tensor) -> torch.Tensor:
-        if self.arguments is None:
-            return self.traced(*inputs)
-        arguments = list(self.arguments)
-        for index, value in zip(self.input_indices, inputs, strict=True):
-            arguments[index] = value
-        return self.compiled(*arguments)[0]
+    def _bind(self, leaves: list[torch.Tensor], result) -> None:
+        examples, self.example_inputs = self.example_inputs, None
+        positions = {id(leaf): index for index, leaf in reversed(list(enumerate(leaves)))}
+        slots = [(slot, positions[id(example)]) for slot, example in enumerate(examples) if id(example) in positions]
+        if len(slots) + sum(id(example) in self.constants for example in examples) == len(examples):
+            self.slots, self.fixed, self.output_tuple = slots, examples, isinstance(result, tuple)
 
-
-def _mangled(name: str, kind: str) -> str:
-    """dynamo's placeholder name of a module's parameter or buffer ``a.b.c``: ``modules_a_modules_b_<kind>_c_``."""
-    *modules, leaf = name.split(".")
-    return "".join(f"modules_{module}_" for module in modules) + f"{kind}_{leaf}_"
+    def __call__(self, *args):
+        leaves = tensor_leaves(args)
+        if self.slots is None:
+            result = self.traced(*args)
+            if self.example_inputs is not None:
+                self._bind(leaves, result)
+            return result
+        inputs = list(self.fixed)
+        for slot, position in self.slots:
+            inputs[slot] = leaves[position]
+        outputs = self.compiled(*inputs)
+        return tuple(outputs) if self.output_tuple else outputs[0]
 
 
 class CompiledPerShape:
-    """A module's forward through one :class:`ForwardProgram` per shape and dtype of its inputs: acting (K, 1, N),
+    """A module's forward through one :class:`DirectProgram` per shape and dtype of its inputs: acting (K, 1, N),
     evaluation (K, E, N) and Proxy Target's regression targets each get their own program. Call it under
     ``torch.no_grad()`` only."""
 
@@ -166,7 +179,7 @@ class CompiledPerShape:
         key = tuple((x.shape, x.dtype) for x in inputs)
         program = self.programs.get(key)
         if program is None:
-            program = self.programs[key] = ForwardProgram(self.module)
+            program = self.programs[key] = DirectProgram(self.module.forward, module_tensors(self.module))
         return program(*inputs)
 
 
@@ -185,8 +198,11 @@ class UpdateProgram:
         self.target_actor_names = [name for name, _ in agent.actor_target.named_parameters()]
         self._parameters: dict[str, list[nn.Parameter]] | None = None
         self.soft_target_actor = agent.proxy is None  # Proxy Target: π' is the proxy, fitted, not averaged
-        self.critic_step = compile_program(self._critic_step) if compile else self._critic_step
-        self.delayed_step = compile_program(self._delayed_step) if compile else self._delayed_step
+        constants = [agent.scale, agent.offset]
+        for module in (agent.actor, agent.critic, agent.actor_target, agent.critic_target, agent.exploration):
+            constants += module_tensors(module) if module is not None else []
+        self.critic_step = DirectProgram(self._critic_step, constants) if compile else self._critic_step
+        self.delayed_step = DirectProgram(self._delayed_step, constants) if compile else self._delayed_step
 
     # ----------------------------------------------------------------------- the pure program
     def _module(self, module: nn.Module, tensors: list[torch.Tensor], names: list[str]) -> Callable:
