@@ -114,14 +114,13 @@ class TD3Agent:
         if td3.exploration == "noisy":
             self.exploration = noisy_exploration(self.actor, td3, task, episode_steps, self.seeds,
                                                  actor_config.learning_rate, self.device)
-        # compile: the whole update runs as one compiled program (UpdateProgram) and a spiking actor's acting
-        # forward pass is compiled too (its many small neuron-update ops fuse into a few loops). DAN acts eagerly:
-        # its three matmuls leave nothing to fuse.
+        # compile: the whole update runs as one compiled program (UpdateProgram) and the acting forward pass is
+        # compiled too (a spiking actor's many small neuron-update ops fuse into a few loops; for DAN the program
+        # saves the eager per-op dispatch: a batch-1 action 169 → 42 µs in the Hopper training loop).
         self.compiled = compile
         if compile:
             prepare_compilation()
-        spiking = actor_config.network == "spiking"
-        self.actor_fn = CompiledPerShape(self.actor) if compile and spiking else self.actor
+        self.actor_fn = CompiledPerShape(self.actor) if compile else self.actor
         if self.exploration is not None:
             exploring = ExploringActor(self.actor, self.exploration)
             self.exploring_fn = CompiledPerShape(exploring) if compile else exploring
