@@ -15,13 +15,14 @@ DEFAULT_STEPS_PER_SECOND = 130.0
 included: the speed :func:`estimate_hours` and ``reproduce --list`` assume unless ``ILCSAN_STEPS_PER_SECOND``
 gives the user's own measurement. ``benchmarks/speed.py`` on a 2-core AMD EPYC (2026-11-30, benchmarks/RESULTS.md):
 133 training steps/s with the update compiled as one program (float32; the default for runs of more than 4 000
-updates), 49 with the reference engine. The protocol's evaluations (10 episodes every 10 000 steps) run all
-episodes in lockstep, about one batched action and ten environment steps per evaluation step, which costs
-about 1 % of the training time."""
+updates), 49 with the reference engine; the Intel machine of the same file runs 212–215 (its slower figure is the
+default, so that estimates hold on both kinds of machine). The protocol's evaluations (10 episodes every 10 000
+steps) run all episodes in lockstep, about one batched action and ten environment steps per evaluation step,
+which costs about 1 % of the training time."""
 
 DAN_STEP_COST = 0.6
 """Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper): 133/233 on the AMD
-and 219/365 on the Intel machine of benchmarks/RESULTS.md."""
+and 212/366–215/404 on the Intel machine of benchmarks/RESULTS.md."""
 PROXY_COST_PER_ITERATION = 1.1
 """Proxy Target adds about this much of ILC-SAN's step time per regression step K (benchmarks/methods.py, Intel,
 compiled: 2.0× with K = 1 and 4.3× with K = 3, i.e. ≈ 1 + 1.1·K)."""
