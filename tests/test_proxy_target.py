@@ -149,6 +149,11 @@ def test_a_compiled_proxy_agent_updates_like_the_eager_one():
 
     rng = np.random.default_rng(4)
     assert_same_updates(eager, compiled, [_random_batch(rng, 1, 2) for _ in range(4)], atol=1e-4)
+    assert compiled.proxy.program.direct, "the regression steps run as one program, called directly"
+    for key in ("step", "exp_avg", "exp_avg_sq"):  # the proxy's Adam state too
+        for before, after in zip(eager.proxy.optimizer.state.values(), compiled.proxy.optimizer.state.values(),
+                                 strict=True):
+            torch.testing.assert_close(before[key], after[key], atol=1e-6, rtol=1e-4)
 
 
 def test_ilcsan_actors_lists_the_training_methods_with_their_papers(capsys):

@@ -11,6 +11,10 @@ of replayed states s_1..s_B:
 and is then used *directly* as π' in y = r + γ(1 − d) min_j Q'_j(s', clip(π̃(s') + ε, low, high)), with
 TD3's target policy smoothing ε. The proxy has no soft-updated copy of its own, and the spiking actor's
 soft-updated copy is not kept. Training only: the deployed actor is the spiking one.
+
+Compiled (``compile=True``), the K regression steps run as one program (:class:`~ilcsan.rl.update_program.
+DirectProgram`): the loss as a pure function of the proxy's parameters (``torch.func``), Adam in place on the
+optimizer's own state, as the update program does.
 """
 
 from __future__ import annotations
@@ -18,9 +22,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import torch
+from torch.func import functional_call, grad_and_value
 
 from ..config import PROXY_HIDDEN, TD3Config, actor_config
 from ..snn.actor import DeepActor, build_actor
+from .update_program import DirectProgram, adam_, adam_state, module_tensors
 
 PROXY_SALT = 4
 """Offset of the proxy's initial weights from a seed (the actor and critic use others)."""
@@ -37,14 +43,31 @@ def build_proxy(state_dim: int, action_dim: int, action_scale: Sequence[float], 
 class ProxyTarget:
     """The proxy actor and its optimiser: ``fit`` imitates the online actor, the module serves as π'."""
 
-    def __init__(self, proxy: DeepActor, td3: TD3Config, fused: bool):
-        self.actor, self.iterations = proxy, td3.proxy_iterations
+    def __init__(self, proxy: DeepActor, td3: TD3Config, fused: bool, compile: bool = False):
+        self.actor, self.iterations, self.lr = proxy, td3.proxy_iterations, td3.proxy_lr
         self.optimizer = torch.optim.Adam(proxy.parameters(), lr=td3.proxy_lr, fused=fused)
+        self.names = [name for name, _ in proxy.named_parameters()]
+        self.parameters = list(proxy.parameters())
+        self.views = [p.detach() for p in self.parameters]
+        self.program = DirectProgram(self._regression_steps, module_tensors(proxy)) if compile else None
 
-    def loss(self, states: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    def loss(self, states: torch.Tensor, goal: torch.Tensor, parameters: Sequence[torch.Tensor] | None = None
+             ) -> torch.Tensor:
         """L_proxy of the module docstring for states (K, B, N) and the online actor's actions ``goal`` (K, B, M):
-        the mean squared action error, summed over seeds (so each seed's gradient is its own)."""
-        return ((self.actor(states) - goal) ** 2).mean(dim=(-2, -1)).sum()
+        the mean squared action error, summed over seeds (so each seed's gradient is its own); with
+        ``parameters``, of the proxy with those tensors as its parameters."""
+        actor = self.actor if parameters is None else (
+            lambda x: functional_call(self.actor, dict(zip(self.names, parameters, strict=True)), (x,)))
+        return ((actor(states) - goal) ** 2).mean(dim=(-2, -1)).sum()
+
+    def _regression_steps(self, tensors: dict, states: torch.Tensor, goals: torch.Tensor) -> torch.Tensor:
+        """The K regression steps as a pure function of the proxy's parameters and Adam state (compiled whole)."""
+        total = torch.zeros(())
+        for step_states, goal in zip(states, goals, strict=True):
+            grads, loss = grad_and_value(self.loss, argnums=2)(step_states, goal, tensors["proxy"])
+            adam_(tensors["proxy"], grads, *tensors["adam"], lr=self.lr)
+            total = total + loss
+        return total / len(states)
 
     def fit(self, online_actor: Callable[[torch.Tensor], torch.Tensor], states: torch.Tensor) -> torch.Tensor:
         """K regression steps, step i on ``states[i]`` (shape (K_iterations, K_seeds, B, N)); returns the mean loss.
@@ -54,6 +77,9 @@ class ProxyTarget:
         with torch.no_grad():
             flat = states.transpose(0, 1).reshape(seeds, iterations * batch, -1)
             goals = online_actor(flat).reshape(seeds, iterations, batch, -1).transpose(0, 1)
+            if self.program is not None:
+                tensors = {"proxy": self.views, "adam": adam_state(self.optimizer, self.parameters)}
+                return self.program(tensors, states.contiguous(), goals.contiguous())
         total = torch.zeros(())
         for step_states, goal in zip(states, goals, strict=True):
             loss = self.loss(step_states, goal)

@@ -102,7 +102,7 @@ class TD3Agent:
         self.proxy: ProxyTarget | None = None  # Proxy Target: π' is the proxy, fitted before every update
         if td3.target_actor == "proxy":
             proxy = build_proxy(state_dim, action_dim, action_scale, action_offset, self.seeds).to(self.device)
-            self.proxy = ProxyTarget(proxy, td3, fused)
+            self.proxy = ProxyTarget(proxy, td3, fused, compile)
         self.actor_target = copy.deepcopy(self.actor) if self.proxy is None else self.proxy.actor
         self.critic = TwinCritic(state_dim, action_dim, td3.critic_hidden, self.seeds).to(self.device)
         self.critic_target = copy.deepcopy(self.critic)
