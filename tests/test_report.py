@@ -94,6 +94,31 @@ def test_paper_value_appears_beside_ours_for_a_known_cell(tmp_path: Path) -> Non
     assert (line["n"], line["status"], line["paper_mean"], line["paper_std"]) == ("3", "ok", "3583.0", "86.0")
 
 
+def test_the_beyond_table_prints_what_later_papers_published_under_ours_for_its_tasks(tmp_path: Path) -> None:
+    make_run(tmp_path, "Hopper", 0, "ILC-SAN", [1500.0], table="beyond", row="ilc-san")
+    markdown = render_markdown(build_table(collect_runs(tmp_path), "beyond"))
+    ours, published = markdown.split("Published by Xu et al., Proxy Target")
+    assert "**1500 ± 0** (n=1)" in ours and "3526" not in ours, "published numbers stay out of our cells"
+    assert "| PT-CLIF (pop-SAN-style CLIF actor + Proxy Target) | 3526 ± 112 |" in published
+    assert "| ILC-SAN | 3403 ± 148 |" in published and "Walker2d" not in published  # only this table's tasks
+    assert "NoisySAN (Chen et al., arXiv 2403.04162): no results table" in published
+    intra = render_markdown(build_table(collect_runs(tmp_path), "intra"))
+    assert "Published by" not in intra
+
+
+def test_the_transcribed_follow_up_numbers_reproduce_their_printed_average_gains() -> None:
+    """Each row's printed gain is the mean over tasks of cell / reference − 1 (Proxy Target's APG): recomputing it
+    from the transcribed cells catches a mistyped cell."""
+    from ilcsan.analysis.followups import FOLLOW_UPS
+
+    for published in (s for sets in FOLLOW_UPS.values() for s in sets):
+        reference = published.rows[published.reference]
+        assert set(published.gains) == set(published.rows)
+        for label, cells in published.rows.items():
+            gain = 100 * np.mean([cells[task].mean / reference[task].mean - 1 for task in reference])
+            assert gain == pytest.approx(published.gains[label], abs=0.01), label
+
+
 def test_missing_cells_say_so_and_still_show_the_paper(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])
     result = build_table(collect_runs(tmp_path), "intra")

@@ -12,6 +12,7 @@ import io
 from collections.abc import Sequence
 
 from .collect import SkippedRun
+from .followups import FOLLOW_UPS, NOT_FOUND
 from .tables import Cell, RowResult, TableResult
 
 
@@ -103,7 +104,25 @@ def _md_table(result: TableResult) -> list[str]:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
         lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
     lines.append("")
-    return lines
+    return lines + _md_follow_ups(result)
+
+
+def _md_follow_ups(result: TableResult) -> list[str]:
+    """The numbers later papers published for this table's tasks (:mod:`ilcsan.analysis.followups`), as their
+    own small tables under ours: other runs, other protocols."""
+    lines = []
+    for published in FOLLOW_UPS.get(result.name or "", ()):
+        tasks = [task for task in result.tasks if any(task in cells for cells in published.rows.values())]
+        if not tasks:
+            continue
+        lines += [f"Published by {published.source} ({published.protocol}; not our runs):", "",
+                  "| Row | " + " | ".join(tasks) + " |", "|" + "---|" * (len(tasks) + 1)]
+        for label, cells in published.rows.items():
+            values = [format_stat(cells[task].mean, cells[task].std) if task in cells else "—" for task in tasks]
+            lines.append("| " + " | ".join([_md_escape(label), *values]) + " |")
+        lines.append("")
+    notes = NOT_FOUND.get(result.name or "", ())
+    return [*lines, *notes, ""] if notes else lines
 
 
 def _missing_text(result: TableResult) -> str:
