@@ -92,6 +92,11 @@ def test_compiled_update_program_equals_the_eager_update(preset, target_actor):
     eager = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8))
     compiled = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True)
     assert eager.program is None and compiled.program is not None
+    if target_actor == "proxy":
+        # the proxy's regression steps run eagerly here, so that both agents' proxies stay equal: their own compiled
+        # program is compared with the eager steps in test_proxy_target (Adam turns the float rounding of near-zero
+        # gradients of the 512-wide proxy into differences of a few 1e-3 over these 36 steps)
+        compiled.proxy.program = None
     rng = np.random.default_rng(1)
     batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
     if target_actor == "proxy":
