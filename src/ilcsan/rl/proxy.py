@@ -22,11 +22,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import torch
-from torch.func import functional_call, grad_and_value
+from torch.func import grad_and_value
 
 from ..config import PROXY_HIDDEN, TD3Config, actor_config
 from ..snn.actor import DeepActor, build_actor
-from .update_program import DirectProgram, adam_, adam_state, module_tensors
+from .update_program import DirectProgram, adam_, adam_state, as_function, module_tensors
 
 PROXY_SALT = 4
 """Offset of the proxy's initial weights from a seed (the actor and critic use others)."""
@@ -56,8 +56,7 @@ class ProxyTarget:
         """L_proxy of the module docstring for states (K, B, N) and the online actor's actions ``goal`` (K, B, M):
         the mean squared action error, summed over seeds (so each seed's gradient is its own); with
         ``parameters``, of the proxy with those tensors as its parameters."""
-        actor = self.actor if parameters is None else (
-            lambda x: functional_call(self.actor, dict(zip(self.names, parameters, strict=True)), (x,)))
+        actor = self.actor if parameters is None else as_function(self.actor, parameters, self.names)
         return ((actor(states) - goal) ** 2).mean(dim=(-2, -1)).sum()
 
     def _regression_steps(self, tensors: dict, states: torch.Tensor, goals: torch.Tensor) -> torch.Tensor:

@@ -77,6 +77,12 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
         param.sub_(step_size * average / (square.sqrt() / root_correction2 + ADAM_EPS))
 
 
+def as_function(module: nn.Module, tensors: Sequence[torch.Tensor], names: Sequence[str]) -> Callable:
+    """``module`` as a function of ``tensors`` (its parameters, in ``names`` order), for ``torch.func``."""
+    parameters = dict(zip(names, tensors, strict=True))
+    return lambda *args, **kwargs: functional_call(module, parameters, args, kwargs)
+
+
 def with_own_code(function: Callable) -> Callable:
     """The same function or bound method on a fresh code object, so that dynamo keeps a separate cache for it."""
     bound_to = getattr(function, "__self__", None)
@@ -205,18 +211,14 @@ class UpdateProgram:
         self.delayed_step = DirectProgram(self._delayed_step, constants) if compile else self._delayed_step
 
     # ----------------------------------------------------------------------- the pure program
-    def _module(self, module: nn.Module, tensors: list[torch.Tensor], names: list[str]) -> Callable:
-        """``module`` as a function of ``tensors`` (its parameters, in ``names`` order)."""
-        parameters = dict(zip(names, tensors, strict=True))
-        return lambda *args, **kwargs: functional_call(module, parameters, args, kwargs)
 
     def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
-        return self.agent.critic_loss(batch, target, self._module(self.agent.critic, critic, self.critic_names))
+        return self.agent.critic_loss(batch, target, as_function(self.agent.critic, critic, self.critic_names))
 
     def _actor_loss(self, actor: list, exploration: list, critic: list, batch: dict) -> torch.Tensor:
         agent = self.agent
-        return agent.actor_loss(batch, self._module(agent.actor, actor, self.actor_names),
-                                self._module(agent.critic, critic, self.critic_names),
+        return agent.actor_loss(batch, as_function(agent.actor, actor, self.actor_names),
+                                as_function(agent.critic, critic, self.critic_names),
                                 exploration[0] if exploration else None)
 
     def _critic_step(self, tensors: dict, batch: dict, noise: torch.Tensor) -> torch.Tensor:
@@ -224,8 +226,8 @@ class UpdateProgram:
         with torch.no_grad():
             target = agent.target_values(
                 batch["next_obs"], noise, batch["reward"], batch["terminal"],
-                self._module(agent.actor_target, tensors["actor_target"], self.target_actor_names),
-                self._module(agent.critic_target, tensors["critic_target"], self.critic_names))
+                as_function(agent.actor_target, tensors["actor_target"], self.target_actor_names),
+                as_function(agent.critic_target, tensors["critic_target"], self.critic_names))
         grads, loss = grad_and_value(self._critic_loss)(tensors["critic"], batch, target)
         adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=agent.td3.critic_lr)
         return loss
