@@ -123,6 +123,19 @@ def test_bundle_file_round_trip(tmp_path):
         assert all(bundle[name].dtype == np.float32 for name in bundle.files if name != "meta")
 
 
+def test_a_bundle_whose_encoder_width_is_zero_is_refused_in_one_line():
+    policy = random_policy()
+    arrays = bundle_arrays(policy)
+    arrays["encoder.sigma"] = arrays["encoder.sigma"].copy()
+    arrays["encoder.sigma"][1, 2] = 0.0
+    with pytest.raises(UserError, match="'encoder.sigma' has zeros") as error:
+        DeployedActor.from_arrays(arrays, bundle_meta(policy))
+    assert "\n" not in str(error.value)
+    arrays["encoder.sigma"][1, 2] = -0.4  # a negative width is the same Gaussian (σ enters squared)
+    flipped = DeployedActor.from_arrays(arrays, bundle_meta(policy))
+    assert np.all(np.isfinite(flipped.act(np.zeros(flipped.state_dim))))
+
+
 # ------------------------------------------------------------------------------- no PyTorch
 def _fresh_python(code: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
