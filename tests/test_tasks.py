@@ -123,3 +123,26 @@ def test_tasks_listing_says_which_versions_and_why(capsys):
     assert main(["tasks"]) == 0
     out = capsys.readouterr().out
     assert tasks.VERSION_NOTE in out and "-v4" in out
+
+
+def test_environments_built_before_one_that_fails_are_closed(monkeypatch):
+    built: list[Closable] = []
+
+    def make_third_fails(name, seed=None):
+        if len(built) == 2:
+            raise UserError(f"task {name!r} cannot be built here: out of file handles")
+        built.append(Closable())
+        return built[-1]
+
+    monkeypatch.setattr(tasks, "make_env", make_third_fails)
+    with pytest.raises(UserError, match="out of file handles"):
+        tasks.make_envs("Hopper", 5)
+    assert len(built) == 2 and all(env.closed for env in built)
+
+
+class Closable:
+    def __init__(self):
+        self.closed = False
+
+    def close(self):
+        self.closed = True

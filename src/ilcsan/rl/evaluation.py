@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..errors import UserError
-from .tasks import make_env
+from .tasks import make_env, make_envs
 
 EVAL_SEED_OFFSET = 1_000_000
 """Training evaluations use seeds from here on, away from the training environments' own seeds."""
@@ -68,7 +68,7 @@ def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarra
 def run_episodes(act, task: str, episodes: int, seed: int = 0) -> tuple[list[float], list[int]]:
     """Run ``episodes`` episodes of ``task`` with ``act(observation) -> action``, episode ``e`` seeded
     ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths."""
-    envs = [make_env(task) for _ in range(episodes)]
+    envs = make_envs(task, episodes)
     try:
         def act_all(observations: np.ndarray) -> np.ndarray:
             return np.stack([act(observation.copy()) for observation in observations[0]])[None]

@@ -187,6 +187,21 @@ def make_env(name: str, seed: int | None = None):
     return env
 
 
+def make_envs(name: str, count: int) -> list:
+    """``count`` environments of ``name`` (see :func:`make_env`); if one cannot be built, those already built
+    are closed before the error propagates."""
+    envs: list = []
+    try:
+        for _ in range(count):
+            envs.append(make_env(name))
+    except BaseException:
+        for env in envs:
+            with contextlib.suppress(Exception):
+                env.close()
+        raise
+    return envs
+
+
 def action_bounds(env) -> tuple[np.ndarray, np.ndarray]:
     """(scale, offset) with action = offset + scale · tanh(O) spanning the Box [low, high]."""
     low = np.asarray(env.action_space.low, dtype=np.float64)

@@ -36,7 +36,7 @@ from .normalizer import RunningNormalizer
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
 from .settings import apply_to_process, choose_matmul_path, describe_matmul_choice, use_compile, validate_run
-from .tasks import make_env
+from .tasks import make_envs
 from .td3 import TD3Agent
 
 LOSS_LIMIT = 1e12
@@ -58,7 +58,8 @@ class Trainer:
         self.eval_envs: list = []
         self.environments = TrainingEnvironments(config.task, config.seeds)  # the task builds: now write
         try:
-            self.eval_envs = [[make_env(config.task) for _ in range(config.eval_episodes)] for _ in config.seeds]
+            for _ in config.seeds:  # appended one seed at a time: close() finds every environment built
+                self.eval_envs.append(make_envs(config.task, config.eval_episodes))
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
