@@ -134,7 +134,7 @@ def test_the_actor_loss_adds_the_noise_penalty_weighted_by_the_return():
     assert float(loss.detach()) == pytest.approx(float(plain.detach()) + 0.5 * float(sigma.detach().mean()) ** 2,
                                                  rel=1e-6)
     (gradient,) = torch.autograd.grad(loss, sigma)  # zero noise: only the penalty depends on σ_d
-    assert torch.allclose(gradient, torch.full_like(sigma, 2 * 0.5 * float(sigma.mean()) / 2))
+    assert torch.allclose(gradient, torch.full_like(sigma, 2 * 0.5 * float(sigma.detach().mean()) / 2))
 
 
 def test_an_update_steps_the_decoder_noise_scale_with_the_actor():
