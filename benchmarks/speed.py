@@ -6,8 +6,9 @@ What it measures, on this machine, in this order:
   2. for each task and for 1 and 2 torch threads, environment steps per second including TD3 updates: ILC-SAN
      with the reference engine (Algorithm 1's time-step loop, eager, about the authors' code), the fast engine
      eager, the update compiled as one program (float32 on the path the run chooses, and bf16); DAN eager and
-     compiled; Stable-Baselines3's TD3 (MLP 256-256) when installed. Each figure is also given as a ratio to the
-     reference engine and to SB3, and as a fraction of the step's matmul-only floor: its recorded matrix
+     compiled; Stable-Baselines3's TD3 (MLP 256-256) when installed, as shipped and with denormal floats flushed
+     to zero as our runs do (``ilcsan.rl.settings.flush_denormals``). Each figure is also given as a ratio to the
+     reference engine and to both SB3 rows, and as a fraction of the step's matmul-only floor: its recorded matrix
      products replayed back to back on the fastest float32 path (bf16 rows: on the bf16 path);
   3. K seeds trained together in one process against K times the floor of one;
   4. batch-1 action latency: the training loop's compiled acting pass and ``Policy.predict`` (eager).
@@ -171,13 +172,16 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
     return steps / elapsed
 
 
-def sb3_speed(task: str, threads: int, steps: int, warmup: int) -> float | None:
+def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush_denormals: bool = False) -> float | None:
+    """SB3's TD3 on the same task and budget; as shipped it keeps denormal floats (``flush_denormals=False``), our
+    runs flush them (:func:`ilcsan.rl.settings.flush_denormals`): both are measured, for a like-for-like ratio."""
     try:
         from stable_baselines3 import TD3
     except ImportError:
         return None
     from ilcsan.rl.tasks import make_env
 
+    torch.set_flush_denormal(flush_denormals)
     torch.set_num_threads(threads)
     env = make_env(task, seed=0)
     model = TD3("MlpPolicy", env, learning_starts=100, batch_size=100, train_freq=1, gradient_steps=1,
@@ -185,7 +189,9 @@ def sb3_speed(task: str, threads: int, steps: int, warmup: int) -> float | None:
     model.learn(total_timesteps=warmup)
     start = time.perf_counter()
     model.learn(total_timesteps=steps, reset_num_timesteps=False)
-    return steps / (time.perf_counter() - start)
+    speed = steps / (time.perf_counter() - start)
+    torch.set_flush_denormal(True)
+    return speed
 
 
 def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
@@ -261,20 +267,28 @@ def task_table(task: str, threads: int, steps: int, warmup: int, emit) -> dict[s
     speeds = {label: training_speed(task, preset, engine, (0,), threads, steps, warmup, compiled, matmul)
               for label, preset, engine, compiled, matmul in ROWS}
     sb3 = sb3_speed(task, threads, steps, warmup)
+    sb3_flushed = sb3_speed(task, threads, steps, warmup, flush_denormals=True)
     reference = speeds[ROWS[0][0]]
     emit(f"**{task}, {threads} thread{'s' if threads > 1 else ''}** — float32 matmul-only floor: ILC-SAN "
          f"{floors['ilc-san'][0]:.0f} steps/s ({floors['ilc-san'][1]}), DAN {floors['dan'][0]:.0f} "
          f"({floors['dan'][1]}); ILC-SAN bf16 floor {bf16_floor:.0f}.")
     emit()
-    emit("| configuration | steps/s | × reference engine | × SB3 | % of its floor |")
-    emit("|---|---|---|---|---|")
+    emit("| configuration | steps/s | × reference engine | × SB3 | × SB3 flushing denormals | % of its floor |")
+    emit("|---|---|---|---|---|---|")
+
+    def versus(speed: float, baseline: float | None) -> str:
+        return f"{speed / baseline:.2f}×" if baseline else "–"
+
     for label, preset, _, _, matmul in ROWS:
         speed = speeds[label]
         floor = bf16_floor if matmul == "bf16" else floors[preset][0]
-        versus_sb3 = f"{speed / sb3:.2f}×" if sb3 else "–"
-        emit(f"| {label} | {speed:.0f} | {speed / reference:.2f}× | {versus_sb3} | {100 * speed / floor:.0f}% |")
+        emit(f"| {label} | {speed:.0f} | {speed / reference:.2f}× | {versus(speed, sb3)} | "
+             f"{versus(speed, sb3_flushed)} | {100 * speed / floor:.0f}% |")
     if sb3:
-        emit(f"| Stable-Baselines3 TD3 (MLP 256-256, float32) | {sb3:.0f} | {sb3 / reference:.2f}× | 1.00× | – |")
+        emit(f"| Stable-Baselines3 TD3 (MLP 256-256, float32), as shipped | {sb3:.0f} | {sb3 / reference:.2f}× | "
+             f"1.00× | {versus(sb3, sb3_flushed)} | – |")
+        emit(f"| Stable-Baselines3 TD3, denormals flushed as in our runs | {sb3_flushed:.0f} | "
+             f"{sb3_flushed / reference:.2f}× | {versus(sb3_flushed, sb3)} | 1.00× | – |")
     emit()
     return speeds
 

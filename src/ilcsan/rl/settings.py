@@ -98,10 +98,26 @@ def describe_matmul_choice(choice: dict) -> str:
 
 
 def apply_to_process(config: RunConfig) -> None:
-    """``--threads`` and ``--matmul`` for this process."""
+    """``--threads``, ``--matmul`` and flushing denormal floats to zero (:func:`flush_denormals`) for this process."""
+    flush_denormals()
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     set_matmul_precision(config.matmul)
+
+
+def flush_denormals() -> bool:
+    """Treat float32 values below 1.2e-38 (denormals) as zero in this thread (x86 FTZ/DAZ) and in the threads
+    it starts later; returns whether the CPU supports it.
+
+    Adam's moments m and v of a weight whose gradient is (nearly) zero — the input weights of a neuron that
+    stays silent, a dead ReLU of Proxy Target's proxy — decay geometrically (×β₁, ×β₂ per update) into the
+    denormal range within a few hundred updates and stay there while tiny gradients keep arriving. Each
+    arithmetic operation on a denormal then takes a microcode assist: a float32 multiply ran 45× slower here
+    (Intel Xeon, one thread), and after 800 Proxy Target updates 43 % of the proxy's and 16 % of the critic's
+    Adam moments were denormal, which made Proxy Target's regression steps 2.7× slower. Flushing them changes an
+    Adam step by less than 1e-30 (m̂ / (√v̂ + ε) with ε = 1e-8 and |m̂| < 1.2e-38), far below a weight's last bit.
+    """
+    return torch.set_flush_denormal(True)
 
 
 def use_compile(config: RunConfig) -> bool:
