@@ -4,6 +4,8 @@ the two-phase commit, the evaluation's episode seeds, the reporters, policies re
 from __future__ import annotations
 
 import copy
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -286,3 +288,17 @@ def test_a_training_process_flushes_denormal_floats_to_zero(tmp_path):
     apply_to_process(RunConfig(task="Pendulum-v1", threads=1))
     assert (denormal * 0.5).max() == 0 and (denormal + 1e-39).max() == 0  # flushed, and read as zero
     assert (torch.full((3,), 2e-38) * 0.75).min() == pytest.approx(1.5e-38)  # normal numbers are untouched
+
+
+def test_threads_started_after_the_flush_flush_denormals_too():
+    code = ("import torch\n"
+            "from ilcsan.rl.settings import flush_denormals\n"
+            "assert flush_denormals()\n"
+            "torch.set_num_threads(2)\n"
+            "x = torch.full((400_000,), 1e-39)\n"
+            "y = x * 0.5  # split over two threads: each half must be exactly zero\n"
+            "bits = y.view(torch.int32)\n"
+            "print(int((bits[:200_000] != 0).sum()), int((bits[200_000:] != 0).sum()))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["0", "0"]
