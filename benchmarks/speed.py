@@ -23,8 +23,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import os
 import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -173,12 +176,20 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
 
 
 def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush_denormals: bool = False) -> float | None:
-    """SB3's TD3 on the same task and budget; as shipped it keeps denormal floats (``flush_denormals=False``), our
-    runs flush them (:func:`ilcsan.rl.settings.flush_denormals`): both are measured, for a like-for-like ratio."""
-    try:
-        from stable_baselines3 import TD3
-    except ImportError:
+    """SB3's TD3 on the same task and budget, in a fresh process (the denormal flag is per thread and inherited
+    by the threads a process starts, so it must be set before any of them exist); as shipped SB3 keeps denormal
+    floats (``flush_denormals=False``), our runs flush them (:func:`ilcsan.rl.settings.flush_denormals`): both
+    are measured, for a like-for-like ratio. None when Stable-Baselines3 is not installed."""
+    if importlib.util.find_spec("stable_baselines3") is None:
         return None
+    argv = [sys.executable, __file__, "--sb3-alone", f"{task},{threads},{steps},{warmup},{int(flush_denormals)}"]
+    done = subprocess.run(argv, capture_output=True, text=True, check=True)
+    return float(done.stdout.split()[-1])
+
+
+def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush_denormals: bool) -> float:
+    from stable_baselines3 import TD3
+
     from ilcsan.rl.tasks import make_env
 
     torch.set_flush_denormal(flush_denormals)
@@ -189,9 +200,7 @@ def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush_denormals:
     model.learn(total_timesteps=warmup)
     start = time.perf_counter()
     model.learn(total_timesteps=steps, reset_num_timesteps=False)
-    speed = steps / (time.perf_counter() - start)
-    torch.set_flush_denormal(True)
-    return speed
+    return steps / (time.perf_counter() - start)
 
 
 def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
@@ -301,7 +310,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10, help="K for the many-seeds measurement")
     parser.add_argument("--tasks", default="Hopper,Ant,HalfCheetah")
     parser.add_argument("--out", help="also write the tables to this Markdown file")
+    parser.add_argument("--sb3-alone", help=argparse.SUPPRESS)  # task,threads,steps,warmup,flush: one SB3 figure
     args = parser.parse_args()
+    if args.sb3_alone:
+        task, *numbers = args.sb3_alone.split(",")
+        threads, steps, warmup, flush = (int(number) for number in numbers)
+        print(sb3_alone(task, threads, steps, warmup, bool(flush)))
+        return
 
     lines = []
 
