@@ -23,12 +23,13 @@ which costs about 1 % of the training time."""
 DAN_STEP_COST = 0.6
 """Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper): 133/233 on the AMD
 and 212/366–215/404 on the Intel machine of benchmarks/RESULTS.md."""
-PROXY_COST_PER_ITERATION = 1.0
+PROXY_COST_PER_ITERATION = 0.6
 """Proxy Target adds about this much of ILC-SAN's step time per regression step K (benchmarks/methods.py, Intel,
-compiled, its regression steps compiled too: 4.0× with K = 3 and 1.75× with K = 1, i.e. ≈ 1 + K, rounded up)."""
+compiled, its regression steps compiled too, denormals flushed: 2.7× the step time with K = 3 and 1.47× with K = 1,
+i.e. 0.57 and 0.47 per step, rounded up)."""
 NOISY_STEP_COST = 2.0
 """NoisySAN exploration's step time relative to ILC-SAN's (benchmarks/methods.py, Intel, compiled: 0.50–0.57× the
-steps/s in two measurements; the slower one)."""
+steps/s in three measurements; the slowest one)."""
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 EXAMPLE_CLUSTER_CORES = 64
