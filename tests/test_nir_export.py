@@ -122,6 +122,29 @@ def test_host_metadata_is_the_bundle_meta(tmp_path):
         assert host[key] == value, key
 
 
+
+def _damage_host(graph, change):
+    host = json.loads(graph.metadata["host"])
+    change(host)
+    graph.metadata["host"] = json.dumps(host)
+
+
+@pytest.mark.parametrize("damage, fragment", [
+    (lambda g: g.metadata.update(host="{not json"), "not valid JSON"),
+    (lambda g: g.metadata.update(host="[1, 2]"), "must be a JSON object"),
+    (lambda g: _damage_host(g, lambda h: h.pop("statistic")), "lacks statistic"),
+    (lambda g: _damage_host(g, lambda h: h.update(obs_std=[0.0] * len(h["obs_std"]))), "'obs_std' must be positive"),
+    (lambda g: _damage_host(g, lambda h: h.update(obs_mean=["a"])), "'obs_mean' must be a list of numbers"),
+    (lambda g: g.metadata.update(encoder_sigma=np.zeros_like(g.metadata["encoder_sigma"])), "has zeros"),
+    (lambda g: g.metadata.update(encoder_mu=np.full_like(g.metadata["encoder_mu"], np.nan)), "NaN or inf"),
+])
+def test_damaged_host_metadata_is_one_user_error(damage, fragment):
+    graph = build_graph(random_policy(hidden=(16,)))
+    damage(graph)
+    with pytest.raises(UserError, match=fragment) as error:
+        nir_action(graph, np.zeros(11))
+    assert "\n" not in str(error.value)
+
 def test_host_encoder_is_the_numpy_runtimes(tmp_path):
     policy = random_policy(hidden=(16,))
     host = read_host(build_graph(policy))

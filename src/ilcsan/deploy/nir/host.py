@@ -16,10 +16,13 @@ from typing import Any
 import numpy as np
 
 from ...errors import UserError
+from ..runtime.bundle_format import check_vectors
 from ..runtime.host import encode, li_voltages, normalize, select_statistic, squash
 from .export import FORMAT
 from .interpreter import simulate_nir
 
+HOST_KEYS = ("encoder", "enc_v_th", "statistic", "obs_clip")
+"""Host constants besides the normaliser's and the action bounds' vectors (checked as a bundle's meta's are)."""
 FORMATS = (FORMAT, "ilcsan-nir/1")  # version 1: dt = 1 (one step), the integrator always in the graph
 
 
@@ -30,13 +33,28 @@ def read_host(graph) -> dict[str, Any]:
     if str(metadata.get("format", "")) not in FORMATS or "host" not in metadata:
         raise UserError(f"this NIR graph has no ilcsan host metadata (format {FORMAT!r}); it was not written "
                         "by ilcsan export --format nir")
-    host = json.loads(str(metadata["host"]))
+    try:
+        host = json.loads(str(metadata["host"]))
+    except json.JSONDecodeError as error:
+        raise UserError(f"this NIR graph's host metadata is not valid JSON ({error}); re-export it") from None
+    if not isinstance(host, dict):
+        raise UserError("this NIR graph's host metadata must be a JSON object; re-export it")
+    missing = [key for key in HOST_KEYS if key not in host]
+    if missing:
+        raise UserError(f"this NIR graph's host metadata lacks {', '.join(missing)}; re-export it with this "
+                        "version of ilcsan")
+    check_vectors(host, "this NIR graph's host metadata")
     host.setdefault("T", int(metadata["timesteps"]))  # graphs written before the host held the bundle's meta
     host.setdefault("integrator", "none" if host.get("statistic") == "fr" else "graph")
     host["dt"] = float(metadata.get("dt", 1.0))
     for name in ("encoder_mu", "encoder_sigma", "decoder_weight", "decoder_bias"):
         if name in metadata:
             host[name] = np.asarray(metadata[name], np.float32)
+            if not np.all(np.isfinite(host[name])):
+                raise UserError(f"this NIR graph's metadata {name!r} contains NaN or inf; re-export it")
+    if "encoder_sigma" in host and np.any(host["encoder_sigma"] == 0):
+        raise UserError("this NIR graph's metadata 'encoder_sigma' has zeros; Eq. (9)'s receptive fields divide "
+                        "by σ (re-export the actor)")
     return host
 
 

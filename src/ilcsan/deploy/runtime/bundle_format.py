@@ -107,7 +107,7 @@ def checked_meta(meta: Any, source: str) -> dict[str, Any]:
     if meta["v_reset"] != 0 or meta["v_reset_li"] != 0:
         raise UserError(f"{source}: the runtime implements reset voltages of 0 (the paper's); got "
                         f"v_reset={meta['v_reset']}, v_reset_li={meta['v_reset_li']}")
-    _check_vectors(meta, source)
+    check_vectors(meta, source)
     intra_mask(meta, source)
     return dict(meta)
 
@@ -129,7 +129,8 @@ def _check_fully_spiking(meta: Mapping[str, Any], source: str) -> None:
         raise UserError(f"{source}: unknown neuron {meta['neuron']!r}; expected one of {NEURONS}")
 
 
-def _check_vectors(meta: Mapping[str, Any], source: str) -> None:
+def check_vectors(meta: Mapping[str, Any], source: str) -> None:
+    """The frozen normaliser's mean/std and the action bounds: non-empty finite lists, std > 0, paired lengths."""
     vectors = {}
     for key in VECTOR_META:
         try:
