@@ -15,6 +15,11 @@ torch.set_num_threads(1)
 def _deterministic_torch():
     torch.manual_seed(0)
     yield
+    from ilcsan.rl.settings import denormals_flushed, flush_denormals
+
+    if denormals_flushed():  # a run flushes denormals and must give the setting back (hypothesis needs them)
+        flush_denormals(False)
+        pytest.fail("the test left this process flushing denormal floats to zero")
 
 
 @pytest.fixture(scope="session")

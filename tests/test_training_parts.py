@@ -279,15 +279,22 @@ def test_a_checkpoint_rebuilds_its_policy_without_an_environment(trained_run, tm
     assert np.array_equal(old.action_scale, [2.0]) and np.array_equal(old.predict(np.zeros(3)), action)
 
 
-def test_a_training_process_flushes_denormal_floats_to_zero(tmp_path):
-    from ilcsan.rl.settings import apply_to_process
+def test_a_training_process_flushes_denormal_floats_to_zero_and_gives_the_setting_back(tmp_path):
+    from ilcsan.rl.settings import denormals_flushed, flush_denormals
 
+    flush_denormals(False)
     denormal = torch.full((1000,), 1e-39)  # below float32's smallest normal, 1.18e-38
-    torch.set_flush_denormal(False)
-    assert (denormal * 0.5).min() > 0  # kept: a gradual underflow
-    apply_to_process(RunConfig(task="Pendulum-v1", threads=1))
-    assert (denormal * 0.5).max() == 0 and (denormal + 1e-39).max() == 0  # flushed, and read as zero
-    assert (torch.full((3,), 2e-38) * 0.75).min() == pytest.approx(1.5e-38)  # normal numbers are untouched
+    assert not denormals_flushed() and (denormal * 0.5).min() > 0  # kept: a gradual underflow
+    config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=300, eval_episodes=1, threads=1,
+                       actor=actor_config("ilc-san", hidden=(16, 16)))
+    trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)
+    try:
+        assert denormals_flushed()
+        assert (denormal * 0.5).max() == 0 and (denormal + 1e-39).max() == 0  # flushed, and read as zero
+        assert (torch.full((3,), 2e-38) * 0.75).min() == pytest.approx(1.5e-38)  # normal numbers are untouched
+    finally:
+        trainer.close()
+    assert not denormals_flushed() and (denormal * 0.5).min() > 0  # this process's setting is given back
 
 
 def test_threads_started_after_the_flush_flush_denormals_too():

@@ -105,15 +105,21 @@ def apply_to_process(config: RunConfig) -> None:
     set_matmul_precision(config.matmul)
 
 
-def flush_denormals() -> bool:
+def denormals_flushed() -> bool:
+    """Whether this thread flushes denormal floats to zero now: a float64 → float32 conversion of 1e-39 tells."""
+    return float(torch.tensor(1e-39, dtype=torch.float64).to(torch.float32)) == 0.0
+
+
+def flush_denormals(on: bool = True) -> bool:
     """Treat float32 values below 1.2e-38 (denormals) as zero in this thread (x86 FTZ/DAZ) and in the threads
-    it starts later; returns whether the CPU supports it.
+    it starts later (``on=False``: keep them again); returns whether the CPU supports it.
 
     The flag is per thread and a new thread inherits it, so it reaches torch's intra-op worker threads only if
     set before the process's first multi-threaded operation creates them (measured with two threads: set
     after, the worker's half of a product kept its denormals and the product took 8 ms instead of 0.02 ms; set
-    before, both halves were flushed). A run sets it first thing
-    (:func:`apply_to_process`); from Python, call this before any multi-threaded torch work.
+    before, both halves were flushed). A run sets it first thing (:func:`apply_to_process`) and the trainer
+    gives this thread its earlier setting back when it closes (worker threads started meanwhile keep it); from
+    Python, call this before any multi-threaded torch work.
 
     Why: Adam's moments m and v of a weight whose gradient is (nearly) zero — the input weights of a neuron that
     stays silent, a dead ReLU of Proxy Target's proxy — decay geometrically (×β₁, ×β₂ per update) into the
@@ -123,7 +129,7 @@ def flush_denormals() -> bool:
     Adam moments were denormal, which made Proxy Target's regression steps 2.7× slower. Flushing them changes an
     Adam step by less than 1e-30 (m̂ / (√v̂ + ε) with ε = 1e-8 and |m̂| < 1.2e-38), far below a weight's last bit.
     """
-    return torch.set_flush_denormal(True)
+    return torch.set_flush_denormal(on)
 
 
 def use_compile(config: RunConfig) -> bool:

@@ -35,7 +35,15 @@ from .memory import check_memory
 from .normalizer import RunningNormalizer
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
-from .settings import apply_to_process, choose_matmul_path, describe_matmul_choice, use_compile, validate_run
+from .settings import (
+    apply_to_process,
+    choose_matmul_path,
+    denormals_flushed,
+    describe_matmul_choice,
+    flush_denormals,
+    use_compile,
+    validate_run,
+)
 from .tasks import make_envs
 from .td3 import TD3Agent
 
@@ -49,8 +57,8 @@ class Trainer:
 
     def __init__(self, config: RunConfig, out: Path, resume: bool = False, progress: bool | None = None,
                  log=print):
+        self.denormals_were_flushed = denormals_flushed()  # given back at close()
         validate_run(config)
-        apply_to_process(config)
         self.config = config
         self.directories = [RunDirectory(path) for path in run_directories(Path(out), config.seeds)]
         self.locks: list = []
@@ -58,6 +66,7 @@ class Trainer:
         self.eval_envs: list = []
         self.environments = TrainingEnvironments(config.task, config.seeds)  # the task builds: now write
         try:
+            apply_to_process(config)  # once the task builds, so that a run that cannot start changes nothing
             for _ in config.seeds:  # appended one seed at a time: close() finds every environment built
                 self.eval_envs.append(make_envs(config.task, config.eval_episodes))
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
@@ -204,7 +213,9 @@ class Trainer:
                 for index, directory in enumerate(self.directories)]
 
     def close(self) -> None:
-        """Close the reporters, environments and locks (safe to call twice)."""
+        """Close the reporters, environments and locks, and give this thread its denormal setting back (safe to
+        call twice)."""
+        flush_denormals(self.denormals_were_flushed)
         self.callbacks.close()
         for env in (env for row in self.eval_envs for env in row):
             env.close()
