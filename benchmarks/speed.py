@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.rl.settings import flush_denormals
 from ilcsan.rl.training import Trainer
 
 TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8), "HalfCheetah": (17, 6)}
@@ -325,6 +326,7 @@ def main() -> None:
         lines.append(text)
 
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    flush_denormals()  # before any multi-threaded work, so that the threads torch starts flush them as a run's do
     paths = path_speeds("Hopper", "ilc-san")
     emit(f"Machine: {cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; float32 GEMM peak "
          f"{gemm_peak(1):.0f} GFLOP/s (1 thread, 2048²). Matmul paths on one ILC-SAN Hopper update's own products "
