@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -255,6 +256,36 @@ def test_untagged_runs_are_placed_in_a_grid_table_by_label(tmp_path: Path) -> No
     result = build_table(collect_runs(tmp_path), "intra")
     assert result.cell("self", "Hopper").n == 1
 
+
+
+def trained_run(root: Path, task: str, seed: int, returns: list[float], preset: str = "ilc-san",
+                td3: dict | None = None, **overrides) -> Path:
+    """A run as ``ilcsan train`` writes it (no table or row tag; the full actor and TD3 settings)."""
+    from ilcsan.config import TD3Config, actor_config
+
+    run = make_run(root, task, seed, preset, returns, subdir=f"mine/{preset}-{len(list(root.rglob('*')))}")
+    config = json.loads((run / "config.json").read_text())
+    config |= {"actor": actor_config(preset, **overrides).to_dict(),
+               "td3": json.loads(json.dumps(dataclasses.asdict(TD3Config(**(td3 or {})))))}
+    (run / "config.json").write_text(json.dumps(config))
+    return run
+
+
+def test_untagged_runs_are_placed_in_a_table_by_their_configuration(tmp_path: Path) -> None:
+    trained_run(tmp_path, "Hopper", 0, [3400])
+    trained_run(tmp_path, "Hopper", 1, [3600])
+    trained_run(tmp_path, "Hopper", 0, [900], hidden=(64, 64))  # another actor: in no row of the paper
+    trained_run(tmp_path, "Hopper", 0, [3500], td3={"target_actor": "proxy"})
+    trained_run(tmp_path, "Hopper", 0, [3300], td3={"exploration": "noisy"})
+    runs = collect_runs(tmp_path)
+    perf = build_table(runs, "perf")
+    cell = perf.cell("ilc-san-pop-det", "Hopper")
+    assert cell.n == 2 and cell.mean == pytest.approx(3500.0) and cell.paper is not None
+    assert all(perf.cell(row.key, "Hopper").n == 0 for row in perf.rows if row.key != "ilc-san-pop-det")
+    beyond = build_table(runs, "beyond")
+    assert [beyond.cell(slug, "Hopper").mean for slug in ("ilc-san", "ilc-san+proxy", "ilc-san+noisy")] == \
+        pytest.approx([3500.0, 3500.0, 3300.0])
+    assert beyond.cell("ilc-san", "Hopper").n == 2 and beyond.cell("dan", "Hopper").n == 0
 
 def test_a_corrupt_run_is_skipped_and_reported(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])

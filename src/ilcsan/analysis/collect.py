@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import TD3Config
 from ..errors import UserError
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 
@@ -54,6 +55,8 @@ class RunRecord:
     """Evaluation steps from ``metrics.csv`` (empty when it is absent)."""
     returns: tuple[float, ...]
     """``eval_return_mean`` at each of ``steps``."""
+    td3: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    """The run's TD3 settings as config.json holds them (empty for runs written without them)."""
 
     @property
     def preset(self) -> str | None:
@@ -120,7 +123,9 @@ def read_run(directory: str | Path) -> RunRecord:
     """Read one run folder; raises :class:`~ilcsan.runs.directory.RunFileError` saying what is missing or
     malformed."""
     run = RunDirectory(directory)
-    task, seed, label, table, row, actor = _parse_config(run.config_object())
+    config = run.config_object()
+    task, seed, label, table, row, actor = _parse_config(config)
+    td3 = config.get("td3") if isinstance(config.get("td3"), dict) else {}
     steps, returns = run.evaluation_curve()
     result = run.result()
     if result is None and not steps:
@@ -136,7 +141,7 @@ def read_run(directory: str | Path) -> RunRecord:
     return RunRecord(
         path=run.path, task=task, seed=seed, label=label, table=table, row=row, actor=actor,
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
-        finished=finished, steps=steps, returns=returns,
+        finished=finished, steps=steps, returns=returns, td3=td3,
     )
 
 
@@ -190,15 +195,22 @@ def _parse_result(result: Mapping[str, Any],
     return best_return, best_step, steps_done, steps_total, finished
 
 
-def _actor_key(run: RunRecord) -> str:
-    return json.dumps(run.actor, sort_keys=True, default=str)
+METHOD_SETTINGS = ("target_actor", "exploration")
+"""The TD3 settings that choose a training method (the rows of Table beyond differ in them)."""
+
+
+def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any]) -> str:
+    """Actor settings and training method (:data:`METHOD_SETTINGS`, defaults where ``td3`` lacks them) as one
+    comparable key."""
+    method = {key: td3.get(key, getattr(TD3Config, key)) for key in METHOD_SETTINGS}
+    return json.dumps({"actor": dict(actor), "method": method}, sort_keys=True, default=str)
 
 
 def row_identity(run: RunRecord) -> tuple:
-    """A grid run's row is its (table, row) tag; any other run's is its label and actor switches."""
+    """A grid run's row is its (table, row) tag; any other run's is its label, actor settings and method."""
     if run.table and run.row:
         return run.table, run.row
-    return run.table, run.label, _actor_key(run)
+    return run.table, run.label, configuration_key(run.actor, run.td3)
 
 
 def _identity(run: RunRecord) -> tuple:

@@ -10,6 +10,11 @@
   ``decode``/``dec_intra``/``intra``/``layer`` are relative to the DAN of ``perf``;
 * the best mean of each column (and the best APR) is marked best.
 
+A run that ``ilcsan reproduce`` did not write (no table/row tags) is placed in a table's row by its label, else
+by its configuration: the same actor settings, all of them, and the same training method
+(:data:`~ilcsan.analysis.collect.METHOD_SETTINGS`) as the row's — so ``ilcsan train --task Hopper --actor
+ilc-san`` lands in Table perf's ILC-SAN (E_pop_det) row.
+
 A cell carries the paper's value for its (table, row, task) where the paper has one; a task the paper
 did not run in that table (e.g. ``reproduce intra --tasks Pendulum-v1``) is one more column without them.
 """
@@ -23,8 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from ..experiments.tables import TABLES, TableSpec
-from .collect import RunRecord, row_identity
+from ..config import actor_config
+from ..experiments.tables import TABLES, RowSpec, TableSpec
+from .collect import RunRecord, configuration_key, row_identity
 from .paper import PAPER_TASKS, Stat, published_apr, published_cell
 
 
@@ -128,9 +134,9 @@ def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None)
 
     ``table`` a table name of :data:`ilcsan.experiments.tables.TABLES` or a :class:`TableSpec`: its rows and tasks,
     every cell present (``—`` where there are no runs), runs placed by their ``table``/``row`` tags, and
-    untagged runs by their label (or row slug) matching a row's. Any other name selects the runs tagged
-    with it. None: all runs, rows by label (by tag when tagged), columns the tasks found. See the
-    module docstring for the statistics (mean ± std with ``ddof=0``, APR over tasks where both exist).
+    untagged runs by their label (or row slug) matching a row's, else by their configuration. Any other name
+    selects the runs tagged with it. None: all runs, rows by label (by tag when tagged), columns the tasks found.
+    See the module docstring for the statistics (mean ± std with ``ddof=0``, APR over tasks where both exist).
     """
     spec = TABLES.get(table) if isinstance(table, str) else table
     if spec is not None:
@@ -140,18 +146,30 @@ def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None)
     return _build_free(runs, None, "All runs", reference=runs)
 
 
+def _rows_by_configuration(rows: Sequence[RowSpec]) -> dict[str, str]:
+    """Row slug by configuration, for the runnable rows whose configuration no other row of the table shares."""
+    keys: dict[str, list[str]] = {}
+    for row in rows:
+        if row.runnable and row.preset is not None:
+            key = configuration_key(actor_config(row.preset, **row.overrides).to_dict(), dict(row.td3))
+            keys.setdefault(key, []).append(row.slug)
+    return {key: slugs[0] for key, slugs in keys.items() if len(slugs) == 1}
+
+
 def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, match_untagged: bool,
                      reference: Sequence[RunRecord]) -> TableResult:
     builtin = spec.name in TABLES
     groups = {row.slug: _RowDraft(row.slug, row.label, (spec.name, row.slug) if builtin else None, row.runnable)
               for row in spec.rows}
     by_label = {row.label: row.slug for row in spec.rows}
+    by_configuration = _rows_by_configuration(spec.rows)
     extra: dict[str, _RowDraft] = {}
     for run in runs:
         if run.table == spec.name:
             slug = run.row if run.row in groups else None
         elif run.table is None and match_untagged:
-            slug = run.row if run.row in groups else by_label.get(run.label)
+            slug = (run.row if run.row in groups else by_label.get(run.label)
+                    or by_configuration.get(configuration_key(run.actor, run.td3)))
             if slug is None:
                 continue
         else:

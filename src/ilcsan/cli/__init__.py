@@ -115,7 +115,10 @@ def _add_report_command(subparsers) -> None:
     report = subparsers.add_parser("report", help="tables and learning curves from runs",
                                  description="Build the paper's tables and learning curves from runs on disk.")
     report.add_argument("directory", help="folder holding runs (searched recursively)")
-    report.add_argument("--table", default=None, help="table layout to use (default: from the runs' tags)")
+    report.add_argument("--table", default=None,
+                        help="table layout to use (default: from the runs' tags); runs not written by `reproduce` "
+                             "land in the row with their label, else in the row with their actor settings and "
+                             "training method")
     report.add_argument("--out", default=None, help="where to write report.md/.tex/.csv and curves.png")
     report.set_defaults(handler=grid_commands.cmd_report)
 
