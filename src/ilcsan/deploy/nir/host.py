@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import UserError
-from ..runtime.bundle_format import check_vectors
+from ..runtime.bundle_format import check_encoder_widths, check_vectors
 from ..runtime.host import encode, li_voltages, normalize, select_statistic, squash
 from .export import FORMAT
 from .interpreter import simulate_nir
@@ -52,9 +52,8 @@ def read_host(graph) -> dict[str, Any]:
             host[name] = np.asarray(metadata[name], np.float32)
             if not np.all(np.isfinite(host[name])):
                 raise UserError(f"this NIR graph's metadata {name!r} contains NaN or inf; re-export it")
-    if "encoder_sigma" in host and np.any(host["encoder_sigma"] == 0):
-        raise UserError("this NIR graph's metadata 'encoder_sigma' has zeros; Eq. (9)'s receptive fields divide "
-                        "by σ (re-export the actor)")
+    if "encoder_sigma" in host:
+        check_encoder_widths(host["encoder_sigma"], "encoder_sigma", "this NIR graph's metadata")
     return host
 
 

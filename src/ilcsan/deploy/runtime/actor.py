@@ -11,6 +11,7 @@ import numpy as np
 
 from .bundle_format import (
     backbone_synapses,
+    check_encoder_widths,
     checked_meta,
     decoder_synapses,
     intra_synapses,
@@ -78,9 +79,7 @@ class DeployedActor:
         population_in, population_out = int(meta["population_in"]), int(meta["population_out"])
         mu = read_array(arrays, "encoder.mu", (state_dim, population_in), source)
         sigma = read_array(arrays, "encoder.sigma", (state_dim, population_in), source)
-        if np.any(sigma == 0):
-            raise UserError(f"{source}: array 'encoder.sigma' has zeros; Eq. (9)'s receptive fields divide by σ "
-                            "(re-export the actor, or repair the bundle's σ)")
+        check_encoder_widths(sigma, "encoder.sigma", source)
         layers = backbone_synapses(arrays, state_dim * population_in, action_dim * population_out, source)
         intra = intra_synapses(arrays, meta, action_dim, population_out, source)
         decoder = decoder_synapses(arrays, action_dim, population_out, source)

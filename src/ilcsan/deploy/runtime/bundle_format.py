@@ -129,6 +129,14 @@ def _check_fully_spiking(meta: Mapping[str, Any], source: str) -> None:
         raise UserError(f"{source}: unknown neuron {meta['neuron']!r}; expected one of {NEURONS}")
 
 
+def check_encoder_widths(sigma: np.ndarray, name: str, source: str) -> None:
+    """Eq. (9)'s receptive fields divide by σ: a zero width is a damaged actor (a negative one is the same
+    Gaussian, σ enters squared)."""
+    if np.any(sigma == 0):
+        raise UserError(f"{source}: {name!r} has zeros; Eq. (9)'s receptive fields divide by σ (re-export the "
+                        "actor)")
+
+
 def check_vectors(meta: Mapping[str, Any], source: str) -> None:
     """The frozen normaliser's mean/std and the action bounds: non-empty finite lists, std > 0, paired lengths."""
     vectors = {}
