@@ -176,24 +176,24 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
     return steps / elapsed
 
 
-def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush_denormals: bool = False) -> float | None:
+def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush: bool = False) -> float | None:
     """SB3's TD3 on the same task and budget, in a fresh process (the denormal flag is per thread and inherited
     by the threads a process starts, so it must be set before any of them exist); as shipped SB3 keeps denormal
-    floats (``flush_denormals=False``), our runs flush them (:func:`ilcsan.rl.settings.flush_denormals`): both
+    floats (``flush=False``), our runs flush them (:func:`ilcsan.rl.settings.flush_denormals`): both
     are measured, for a like-for-like ratio. None when Stable-Baselines3 is not installed."""
     if importlib.util.find_spec("stable_baselines3") is None:
         return None
-    argv = [sys.executable, __file__, "--sb3-alone", f"{task},{threads},{steps},{warmup},{int(flush_denormals)}"]
+    argv = [sys.executable, __file__, "--sb3-alone", f"{task},{threads},{steps},{warmup},{int(flush)}"]
     done = subprocess.run(argv, capture_output=True, text=True, check=True)
     return float(done.stdout.split()[-1])
 
 
-def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush_denormals: bool) -> float:
+def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush: bool) -> float:
     from stable_baselines3 import TD3
 
     from ilcsan.rl.tasks import make_env
 
-    torch.set_flush_denormal(flush_denormals)
+    flush_denormals(flush)
     torch.set_num_threads(threads)
     env = make_env(task, seed=0)
     model = TD3("MlpPolicy", env, learning_starts=100, batch_size=100, train_freq=1, gradient_steps=1,
@@ -277,7 +277,7 @@ def task_table(task: str, threads: int, steps: int, warmup: int, emit) -> dict[s
     speeds = {label: training_speed(task, preset, engine, (0,), threads, steps, warmup, compiled, matmul)
               for label, preset, engine, compiled, matmul in ROWS}
     sb3 = sb3_speed(task, threads, steps, warmup)
-    sb3_flushed = sb3_speed(task, threads, steps, warmup, flush_denormals=True)
+    sb3_flushed = sb3_speed(task, threads, steps, warmup, flush=True)
     reference = speeds[ROWS[0][0]]
     emit(f"**{task}, {threads} thread{'s' if threads > 1 else ''}** — float32 matmul-only floor: ILC-SAN "
          f"{floors['ilc-san'][0]:.0f} steps/s ({floors['ilc-san'][1]}), DAN {floors['dan'][0]:.0f} "

@@ -117,17 +117,18 @@ def flush_denormals(on: bool = True) -> bool:
     The flag is per thread and a new thread inherits it, so it reaches torch's intra-op worker threads only if
     set before the process's first multi-threaded operation creates them (measured with two threads: set
     after, the worker's half of a product kept its denormals and the product took 8 ms instead of 0.02 ms; set
-    before, both halves were flushed). A run sets it first thing (:func:`apply_to_process`) and the trainer
-    gives this thread its earlier setting back when it closes (worker threads started meanwhile keep it); from
-    Python, call this before any multi-threaded torch work.
+    before, both halves were flushed). A run sets it before any torch work, once its task builds
+    (:func:`apply_to_process`), and the trainer gives this thread its earlier setting back when it closes
+    (worker threads started meanwhile keep it); from Python, call this before any multi-threaded torch work.
 
     Why: Adam's moments m and v of a weight whose gradient is (nearly) zero — the input weights of a neuron that
     stays silent, a dead ReLU of Proxy Target's proxy — decay geometrically (×β₁, ×β₂ per update) into the
     denormal range within a few hundred updates and stay there while tiny gradients keep arriving. Each
     arithmetic operation on a denormal then takes a microcode assist: a float32 multiply ran 45× slower here
-    (Intel Xeon, one thread), and after 800 Proxy Target updates 43 % of the proxy's and 16 % of the critic's
-    Adam moments were denormal, which made Proxy Target's regression steps 2.7× slower. Flushing them changes an
-    Adam step by less than 1e-30 (m̂ / (√v̂ + ε) with ε = 1e-8 and |m̂| < 1.2e-38), far below a weight's last bit.
+    (Intel Xeon, one thread), and after about a thousand Proxy Target updates 43 % of the proxy's and 16 % of
+    the critic's Adam moments were denormal, which made Proxy Target's regression steps 2.7× slower. Flushing
+    them changes an Adam step by less than 1e-30 (m̂ / (√v̂ + ε) with ε = 1e-8 and |m̂| < 1.2e-38), far below a
+    weight's last bit.
     """
     return torch.set_flush_denormal(on)
 
