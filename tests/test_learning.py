@@ -15,7 +15,8 @@ THRESHOLD = -600.0  # Pendulum-v1: random actions score about -1200, a swinging-
 @pytest.mark.slow
 @pytest.mark.parametrize("matmul", ["float32", "bf16"])
 def test_ilc_san_learns_pendulum(tmp_path, matmul):
-    """Also with bf16 matmuls (--matmul bf16; on a CPU without bf16 support it is float32 again)."""
+    """Also with bf16 matmuls (--matmul bf16: the products bfloat16 computes faster on this CPU, which are
+    the hidden layers' here)."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=6000, eval_every=2000, eval_episodes=5,
                        actor=actor_config("ilc-san"), td3=TD3Config(start_steps=1000, update_after=1000),
                        threads=1, compile="off", matmul=matmul)

@@ -9,17 +9,22 @@ import pytest
 import torch
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.rl.settings import run_products
 from ilcsan.rl.training import Trainer
 from ilcsan.snn.ensemble import EnsembleLinear, seed_generators
 from ilcsan.snn.matmul import (
     COMPILABLE_PATHS,
     FLOAT32_PATHS,
+    bf16_faster_products,
+    bf16_operands,
     ensemble_matmul,
     fastest_float32_path,
+    gaining_products,
     layer_products,
     matmul_path,
     measure_paths,
     onednn_available,
+    product_path,
     use_matmul_path,
 )
 
@@ -28,8 +33,7 @@ PATHS = [path for path in FLOAT32_PATHS if path != "onednn" or onednn_available(
 
 @pytest.fixture
 def restore_path():
-    """Put back the process's matmul path and torch's float32 matmul precision (a bf16 run sets "medium", which on
-    a CPU with AMX makes every later float32 product bfloat16)."""
+    """Put back the process's matmul path and torch's float32 matmul precision."""
     before, precision = matmul_path(), torch.get_float32_matmul_precision()
     yield
     use_matmul_path(before)
@@ -126,4 +130,68 @@ def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
     assert RunConfig.from_dict(json.loads((tmp_path / "run" / "config.json").read_text())).actor == config.actor
     bf16 = RunConfig(**{**config.__dict__, "matmul": "bf16"})
     Trainer(bf16, tmp_path / "bf16", progress=False, log=lines.append).close()
-    assert json.loads((tmp_path / "bf16" / "config.json").read_text())["matmul_path"]["path"] == "bf16"
+    recorded = json.loads((tmp_path / "bf16" / "config.json").read_text())["matmul_path"]
+    assert recorded["path"] == "bf16" and recorded["products"] == len(set(run_products(bf16, 3, 1)))
+    assert {(tuple(a), tuple(w)) for a, w in recorded["bf16_products"]} <= set(run_products(bf16, 3, 1))
+    assert lines[-1].startswith(f"matmul: bf16 on {len(recorded['bf16_products'])} of this run's "
+                                f"{recorded['products']} product shapes")
+
+
+def test_a_bf16_run_rounds_only_the_products_it_measured_faster_in_bfloat16(restore_path):
+    assert gaining_products({((1, 5, 4), (1, 3, 4)): (1.0, 0.9), ((1, 5, 3), (1, 4, 3)): (1.0, 0.91),
+                             ((1, 3, 5), (1, 4, 5)): (1.0, 2.0)}) == {((1, 5, 4), (1, 3, 4))}
+    generator = torch.Generator().manual_seed(4)
+    big, small = ((1, 40, 30), (1, 20, 30)), ((1, 40, 6), (1, 20, 6))
+    use_matmul_path("bf16", {big})
+    assert product_path(*big) == "bf16" and product_path(*small) == "aten"
+    for shapes, rounded in ((big, True), (small, False)):
+        a, w = torch.randn(shapes[0], generator=generator), torch.randn(shapes[1], generator=generator)
+        exact = torch.bmm(a.double(), w.double().transpose(1, 2))
+        assert torch.allclose(ensemble_matmul(a, w).double(), exact, rtol=1e-5, atol=1e-5) is not rounded
+    use_matmul_path("bf16")  # no list: every product
+    assert product_path(*small) == "bf16"
+
+
+def test_bf16_operands_come_contiguous_in_one_cast():
+    a, w = torch.randn(2, 7, 5), torch.randn(2, 3, 5).transpose(1, 2).contiguous().transpose(1, 2)
+    a16, wt16 = bf16_operands(a, w)
+    assert a16.dtype == wt16.dtype == torch.bfloat16 and a16.is_contiguous() and wt16.is_contiguous()
+    assert torch.equal(wt16, w.transpose(1, 2).to(torch.bfloat16)) and wt16.shape == (2, 5, 3)
+
+
+def test_timing_both_paths_gives_every_distinct_product_two_positive_times():
+    products = layer_products(1, 16, 8, 4) * 2
+    times = bf16_faster_products(products, fused_casts=True, seconds=0.0005)
+    assert set(times) == set(products) and all(f32 > 0 and b16 > 0 for f32, b16 in times.values())
+
+
+@pytest.mark.parametrize(("preset", "options", "target"), [("ilc-san", {}, "spiking"), ("dan", {}, "spiking"),
+                                                         ("ilc-san", {}, "proxy"),
+                                                         ("ilc-san", {"encoder": "pop"}, "spiking")])
+def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, options, target, monkeypatch):
+    """The bf16 choice is made per product shape from ``run_products``: a shape missing from it would silently
+    stay float32. Records every product of a short run (updates, acting, evaluation, the proxy's fit)."""
+    import ilcsan.snn.ensemble as ensemble
+
+    seen = set()
+
+    def recording(a_shape, w_shape):
+        seen.add((tuple(a_shape), tuple(w_shape)))
+        return product_path(a_shape, w_shape)
+
+    def recording_matmul(a, w, path=None):
+        seen.add((tuple(a.shape), tuple(w.shape)))
+        return ensemble_matmul(a, w, path)
+
+    monkeypatch.setattr(ensemble, "product_path", recording)
+    monkeypatch.setattr(ensemble, "ensemble_matmul", recording_matmul)
+    config = RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=160, eval_every=160, eval_episodes=2, threads=1,
+                       actor=actor_config(preset, hidden=(8,), **options), compile="off",
+                       td3=TD3Config(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),
+                                     target_actor=target))
+    trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)
+    try:
+        trainer.train()
+    finally:
+        trainer.close()
+    assert seen and seen <= set(run_products(config, 3, 1)), sorted(seen - set(run_products(config, 3, 1)))

@@ -14,6 +14,7 @@ from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import Trainer, train
+from ilcsan.snn.matmul import matmul_path, use_matmul_path
 
 TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
 
@@ -107,19 +108,22 @@ def test_compiled_update_program_equals_the_eager_update(preset):
 
 
 @pytest.fixture
-def _restore_matmul_precision():
-    before = torch.get_float32_matmul_precision()
+def _restore_matmul_settings():
+    before, path = torch.get_float32_matmul_precision(), matmul_path()
     yield
     torch.set_float32_matmul_precision(before)
+    use_matmul_path(path)
 
 
-def test_matmul_option_sets_the_precision_and_rejects_unknown_names(tmp_path, _restore_matmul_precision):
+def test_matmul_option_sets_the_path_and_rejects_unknown_names(tmp_path, _restore_matmul_settings):
+    torch.set_float32_matmul_precision("medium")
     trainer = Trainer(tiny_run(matmul="bf16", steps=10), tmp_path / "bf16", progress=False, log=lambda *_: None)
     trainer.close()
-    assert torch.get_float32_matmul_precision() == "medium"
+    # on a CPU the bf16 path rounds the products it chose itself; torch's precision keeps every other one float32
+    assert matmul_path() == "bf16" and torch.get_float32_matmul_precision() == "highest"
     trainer = Trainer(tiny_run(steps=10), tmp_path / "f32", progress=False, log=lambda *_: None)
     trainer.close()
-    assert torch.get_float32_matmul_precision() == "highest"
+    assert matmul_path() != "bf16" and torch.get_float32_matmul_precision() == "highest"
     with pytest.raises(UserError, match="--matmul 'fp8' is not one of: float32, bf16"):
         Trainer(tiny_run(matmul="fp8"), tmp_path / "bad", progress=False, log=lambda *_: None)
 

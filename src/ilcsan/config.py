@@ -37,10 +37,10 @@ NETWORKS: tuple[str, ...] = ("spiking", "deep")
 ENGINES: tuple[str, ...] = ("fast", "reference")
 """The actor's forward passes: layer-major (fast, default) and the literal Algorithm-1 time loop (reference)."""
 COMPILE_MODES: tuple[str, ...] = ("auto", "on", "off")
-# --matmul → torch's float32 matmul precision. "bf16" lets oneDNN round a float32 matmul's inputs to bfloat16
-# and accumulate in float32 (AMX / AVX512-BF16 CPUs; elsewhere it stays float32); on CUDA torch then uses
-# TF32/bf16 tensor cores. Neuron states, spikes, losses and optimiser stay float32 either way.
-MATMUL_PRECISIONS = {"float32": "highest", "bf16": "medium"}
+# --matmul: "bf16" computes in bfloat16 (float32 accumulation) the products that run faster so, measured at the
+# start of a run (AMX / AVX512-BF16 CPUs; ilcsan.snn.matmul), and on CUDA lets torch use TF32/bf16 tensor cores.
+# Neuron states, spikes, losses and optimiser stay float32 either way.
+MATMUL_CHOICES: tuple[str, ...] = ("float32", "bf16")
 TARGET_ACTOR_PAPERS: dict[str, str] = {
     "spiking": "the soft-updated copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
     "proxy": "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)",
@@ -352,7 +352,7 @@ class RunConfig:
                                      "operands and products rounded to bfloat16 (AVX512-BF16/AMX kernels; TF32/bf16 "
                                      "on CUDA); faster products on such CPUs, but measure: on one AMD EPYC it gave "
                                      "1.2-1.4x per training step with one thread and was slower with two",
-                          choices=MATMUL_PRECISIONS)
+                          choices=MATMUL_CHOICES)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`

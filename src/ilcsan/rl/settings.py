@@ -4,12 +4,22 @@ precision, and whether to compile."""
 from __future__ import annotations
 
 import os
+from itertools import pairwise
 
 import torch
 
-from ..config import MATMUL_PRECISIONS, RunConfig, check_settings
+from ..config import PROXY_HIDDEN, SPIKING_ENCODERS, RunConfig, check_settings
 from ..errors import UserError
-from ..snn.matmul import COMPILABLE_PATHS, fastest_float32_path, layer_products, measure_paths, use_matmul_path
+from ..snn.matmul import (
+    COMPILABLE_PATHS,
+    Product,
+    bf16_faster_products,
+    fastest_float32_path,
+    gaining_products,
+    layer_products,
+    measure_paths,
+    use_matmul_path,
+)
 from .noisy_exploration import return_reference
 
 COMPILE_PAYS_AFTER_UPDATES = {"spiking": 4_000, "deep": 25_000}
@@ -53,36 +63,58 @@ def _validate_device(name: str) -> None:
         raise UserError(f"--device {name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
 
 
-def set_matmul_precision(name: str) -> None:
-    """Apply ``--matmul`` to this process (torch's setting is global)."""
-    torch.set_float32_matmul_precision(MATMUL_PRECISIONS[name])
+def set_matmul_precision(name: str, device: str = "cpu") -> None:
+    """Apply ``--matmul`` to torch's float32 matmul precision (a global setting): on CUDA, ``bf16`` lets float32
+    products use TF32/bf16 tensor cores ("medium"); on a CPU every float32 product stays float32 ("highest"; there
+    the bf16 path casts the products it chooses itself, :mod:`ilcsan.snn.matmul`: "medium" would make oneDNN
+    round every float32 product, the small ones too, which bfloat16 computes slower)."""
+    cuda_bf16 = name == "bf16" and torch.device(device).type == "cuda"
+    torch.set_float32_matmul_precision("medium" if cuda_bf16 else "highest")
 
 
-def run_products(config: RunConfig, state_dim: int, action_dim: int) -> list:
-    """The (a, w) shapes of every product of one update of this run: each actor layer over T·B rows (B rows for
-    DAN and an analog first layer are close enough for timing) and each of the 2K critics' layers over B rows,
-    forward and both backward products."""
-    seeds, batch = len(config.seeds), config.td3.batch_size
-    actor = config.actor
-    rows = batch * (actor.timesteps if actor.network == "spiking" else 1)
-    sizes = actor.layer_sizes(state_dim, action_dim)
-    critic = [state_dim + action_dim, *config.td3.critic_hidden, 1]
-    products = [p for d_in, d_out in zip(sizes[:-1], sizes[1:], strict=True)
-                for p in layer_products(seeds, rows, d_in, d_out)]
-    return products + [p for d_in, d_out in zip(critic[:-1], critic[1:], strict=True)
-                       for p in layer_products(2 * seeds, batch, d_in, d_out)]
+def run_products(config: RunConfig, state_dim: int, action_dim: int) -> list[Product]:
+    """The (a, w) shapes of the products of this run (:data:`~ilcsan.snn.matmul.Product`), repeated as a step
+    repeats them: for each actor layer the three products of an update over T·B rows and the forward product of
+    acting (T rows), of evaluation (T·E rows) and, with Proxy Target, of the proxy's regression targets (T·B·K_proxy
+    rows), T being 1 for DAN and for a first layer whose input is not a spike train; the three products of every
+    critic layer for the 2K critics of the critic loss and for the K first critics of the actor loss; and with
+    Proxy Target, those of the proxy's layers."""
+    seeds, td3, actor = len(config.seeds), config.td3, config.actor
+    batch, proxy = td3.batch_size, td3.target_actor == "proxy"
+    timesteps = actor.timesteps if actor.network == "spiking" else 1
+    forward_rows = [1, config.eval_episodes] + ([batch * td3.proxy_iterations] if proxy else [])
+    products = []
+    for index, (d_in, d_out) in enumerate(pairwise(actor.layer_sizes(state_dim, action_dim))):
+        steps = timesteps if index > 0 or actor.encoder in SPIKING_ENCODERS else 1
+        products += layer_products(seeds, steps * batch, d_in, d_out)
+        products += [layer_products(seeds, steps * rows, d_in, d_out)[0] for rows in forward_rows]
+    critic = [state_dim + action_dim, *td3.critic_hidden, 1]
+    for members in (2 * seeds, seeds):
+        products += [p for d_in, d_out in pairwise(critic) for p in layer_products(members, batch, d_in, d_out)]
+    if proxy:
+        sizes = [state_dim, *PROXY_HIDDEN, action_dim]
+        products += [p for d_in, d_out in pairwise(sizes) for p in layer_products(seeds, batch, d_in, d_out)]
+    return products
 
 
 def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> dict:
-    """Set this process's matmul path for the run (:mod:`ilcsan.snn.matmul`): ``bf16`` when asked, else the
-    faster float32 path on the run's own products, measured now (among the compilable paths when the run is
-    compiled). Returns what was chosen and the measured GFLOP/s, for config.json and the start-up line."""
-    if config.matmul == "bf16" or torch.device(config.device).type != "cpu":
-        path = "bf16" if config.matmul == "bf16" and torch.device(config.device).type == "cpu" else "aten"
-        use_matmul_path(path)
-        return {"path": path, "gflops": {}}
-    speeds = measure_paths(run_products(config, state_dim, action_dim), seconds=0.05)
-    compiled = use_compile(config)
+    """Set this process's matmul path for the run (:mod:`ilcsan.snn.matmul`) and return what was chosen, for
+    config.json and the start-up line. float32: the faster float32 path on the run's own products, measured now
+    (among the compilable paths when the run is compiled). bf16: bfloat16 for the products it computes faster,
+    measured now as the run will compute them (casts fused when compiled), float32 (``aten``) for the others."""
+    if torch.device(config.device).type != "cpu":
+        use_matmul_path("aten")
+        return {"path": "aten", "gflops": {}}
+    products, compiled = run_products(config, state_dim, action_dim), use_compile(config)
+    if config.matmul == "bf16":
+        times = bf16_faster_products(products, fused_casts=compiled)
+        gaining = gaining_products(times)
+        use_matmul_path("bf16", gaining)
+        float32_seconds, bf16_seconds = (sum(times[product][index] for product in gaining) for index in (0, 1))
+        return {"path": "bf16", "compiled": compiled, "gflops": {},
+                "bf16_products": sorted([list(a), list(w)] for a, w in gaining), "products": len(times),
+                "bf16_speedup": round(float32_seconds / bf16_seconds, 2) if gaining else None}
+    speeds = measure_paths(products, seconds=0.05)
     path = fastest_float32_path(speeds, compiled)
     use_matmul_path(path)
     return {"path": path, "compiled": compiled, "gflops": {name: round(value, 1) for name, value in speeds.items()}}
@@ -90,6 +122,11 @@ def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> di
 
 def describe_matmul_choice(choice: dict) -> str:
     """One line for the start of a run: the path and, when measured, each path's speed on the run's products."""
+    if "bf16_products" in choice:
+        chosen, total = len(choice["bf16_products"]), choice["products"]
+        gain = f", {choice['bf16_speedup']:.1f}x faster on those" if chosen else ""
+        return (f"matmul: bf16 on {chosen} of this run's {total} product shapes (measured{gain}), float32 (aten) "
+                f"on the {total - chosen} that bfloat16 does not speed up")
     if not choice["gflops"]:
         return f"matmul: {choice['path']}"
     speeds = ", ".join(f"{name} {value:.0f}" + (" (eager runs only)" if choice["compiled"] and name not in
@@ -102,7 +139,7 @@ def apply_to_process(config: RunConfig) -> None:
     flush_denormals()
     if config.threads is not None:
         torch.set_num_threads(config.threads)
-    set_matmul_precision(config.matmul)
+    set_matmul_precision(config.matmul, config.device)
 
 
 def denormals_flushed() -> bool:

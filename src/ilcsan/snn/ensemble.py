@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .matmul import ensemble_matmul, matmul_path
+from .matmul import ensemble_matmul, product_path
 
 
 def uniform_(tensor: torch.Tensor, bound: float, generators: Sequence[torch.Generator]) -> None:
@@ -39,7 +39,7 @@ class _EnsembleAffine(torch.autograd.Function):
     def forward(flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:  # noqa: D102
         if bias is None:
             return ensemble_matmul(flat, weight)
-        if matmul_path() == "aten":  # the bias rides in the BLAS call
+        if product_path(flat.shape, weight.shape) == "aten":  # the bias rides in the BLAS call
             return torch.baddbmm(bias.unsqueeze(1), flat, weight.transpose(1, 2))
         return ensemble_matmul(flat, weight) + bias.unsqueeze(1)
 

@@ -7,8 +7,13 @@ Every synaptic layer, critic layer and their gradients is one batched product ``
             an AVX-512 AMD CPU whose vector units are 512 bits wide it reaches about half of the peak.
 ``onednn``  oneDNN's matmul primitive (``torch.ops.mkldnn._linear_pointwise``), float32, which uses AVX-512
             (and AMX's float32 paths where present) on both vendors.
-``bf16``    ``torch.bmm`` on bfloat16 copies of both operands, the product rounded to bfloat16 and returned as
-            float32 (AVX512-BF16 or AMX kernels through oneDNN). Not float32: chosen only by ``--matmul bf16``.
+``bf16``    ``torch.bmm`` on contiguous bfloat16 copies of both operands (``a`` and ``wᵀ``), the product rounded to
+            bfloat16 and returned as float32 (AMX or AVX512-BF16 kernels through oneDNN). Not float32: chosen only
+            by ``--matmul bf16``. oneDNN pays a fixed cost of ≈ 20 µs per bfloat16 call (measured on an AMX Xeon:
+            a (100 × 14)·(14 × 256) product takes 24 µs in bfloat16 against 6 µs in float32, a (500 × 256)·(256 ×
+            256) one 72 µs against 436 µs), so a bf16 run keeps its small products in float32: it times each of
+            its products both ways at start (:func:`bf16_faster_products`) and runs in bfloat16 only those that
+            gain (``use_matmul_path("bf16", products)``; :func:`product_path`).
 
 :func:`measure_paths` times the float32 paths on a run's own shapes (forward and both backward products of
 every layer) and :func:`fastest_float32_path` picks the quicker; the two agree to float32 rounding (tested).
@@ -20,7 +25,7 @@ torch's own matmul precision.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Collection, Sequence
 
 import torch
 
@@ -31,19 +36,37 @@ COMPILABLE_PATHS = ("aten", "bf16")
 but the program's gradient of a first layer's weight comes out as zero (tested: ``tests/test_matmul.py``), so
 compiled runs keep to these and oneDNN serves eager runs only."""
 
+Product = tuple[tuple[int, ...], tuple[int, ...]]
+"""The shapes (a, w) of a product ``a @ wᵀ``: ((K, R, in), (K, out, in))."""
+
+BF16_GAIN = 0.9
+"""A bf16 run computes a product in bfloat16 only when that takes at most this fraction of its float32 time: where
+the two are about as fast, the exact one."""
+
 _path = "aten"
+_bf16_products: frozenset[Product] | None = None
 
 
-def use_matmul_path(path: str) -> None:
-    """Run every :func:`ensemble_matmul` of this process on ``path`` (one of :data:`MATMUL_PATHS`)."""
-    global _path
+def use_matmul_path(path: str, bf16_products: Collection[Product] | None = None) -> None:
+    """Run every :func:`ensemble_matmul` of this process on ``path`` (one of :data:`MATMUL_PATHS`). With ``bf16``,
+    ``bf16_products`` are the product shapes to compute in bfloat16, the others running on ``aten`` (None: all)."""
+    global _path, _bf16_products
     if path not in MATMUL_PATHS:
         raise ValueError(f"unknown matmul path {path!r}; choose one of {', '.join(MATMUL_PATHS)}")
     _path = path
+    _bf16_products = None if bf16_products is None else frozenset(bf16_products)
 
 
 def matmul_path() -> str:
-    """The path :func:`ensemble_matmul` runs on in this process."""
+    """The path this process's products run on (with ``bf16``, those :func:`product_path` keeps in bfloat16)."""
+    return _path
+
+
+def product_path(a_shape: Sequence[int], w_shape: Sequence[int]) -> str:
+    """The path :func:`ensemble_matmul` runs a product of these shapes on in this process. Shapes are static in a
+    compiled program, so the choice is made once, when it is traced."""
+    if _path == "bf16" and _bf16_products is not None and (tuple(a_shape), tuple(w_shape)) not in _bf16_products:
+        return "aten"
     return _path
 
 
@@ -70,43 +93,88 @@ def _(a: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 def ensemble_matmul(a: torch.Tensor, w: torch.Tensor, path: str | None = None) -> torch.Tensor:
     """a @ wᵀ per ensemble member, (K, R, in) × (K, out, in) → (K, R, out), on ``path`` (default: this
     process's, :func:`use_matmul_path`). Not differentiable by itself: callers write their backward with it."""
-    path = path or _path
+    path = path or product_path(a.shape, w.shape)
     if path == "onednn":
         return onednn_matmul_nt(a.detach(), w.detach())
     if path == "bf16":
-        return torch.bmm(a.to(torch.bfloat16), w.to(torch.bfloat16).transpose(1, 2)).to(a.dtype)
+        return torch.bmm(*bf16_operands(a, w)).to(a.dtype)
     return torch.bmm(a, w.transpose(1, 2))
 
 
-def layer_products(ensemble: int, rows: int, d_in: int, d_out: int) -> list[tuple[tuple[int, ...], tuple[int, ...]]]:
+def bf16_operands(a: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``a`` and ``wᵀ`` as contiguous bfloat16 tensors, each cast in one pass. oneDNN copies a transposed bfloat16
+    operand into this layout itself, at a cost (measured: ≈ 20 copies per ILC-SAN update, 0.3 ms); made here, the
+    layout comes with the cast, which a compiled program fuses into the kernel that computes the operand."""
+    return (a.to(torch.bfloat16, memory_format=torch.contiguous_format),
+            w.transpose(1, 2).to(torch.bfloat16, memory_format=torch.contiguous_format))
+
+
+def product_call(a: torch.Tensor, w: torch.Tensor, path: str, fused_casts: bool = False) -> Callable[[], torch.Tensor]:
+    """A call computing ``a @ wᵀ`` on ``path`` as a run does, for timing: on ``bf16`` with ``fused_casts`` the
+    operands are cast beforehand, as a compiled program computes them (:func:`bf16_operands`); otherwise the
+    call casts them, as an eager run does."""
+    if path == "bf16" and fused_casts:
+        a16, wt16 = bf16_operands(a, w)
+        return lambda: torch.bmm(a16, wt16)
+    return lambda: ensemble_matmul(a, w, path)
+
+
+def time_calls(calls: dict[str, Sequence[Callable[[], object]]], seconds: float) -> dict[str, float]:
+    """The best time of each entry's calls run back to back, in seconds. The entries are timed in alternation,
+    several rounds (at least 3, at most 50, for about ``seconds`` each), keeping each entry's best round (the
+    least disturbed by other work on the machine); a warm-up call each first (oneDNN builds its primitives on
+    the first call of each shape)."""
+    for group in calls.values():
+        for call in group:
+            call()
+    best = dict.fromkeys(calls, float("inf"))
+    rounds, deadline = 0, time.perf_counter() + seconds * len(calls)
+    while rounds < 3 or (time.perf_counter() < deadline and rounds < 50):
+        for name, group in calls.items():
+            start = time.perf_counter()
+            for call in group:
+                call()
+            best[name] = min(best[name], time.perf_counter() - start)
+        rounds += 1
+    return best
+
+
+def bf16_faster_products(products: Collection[Product], fused_casts: bool,
+                         seconds: float = 0.002) -> dict[Product, tuple[float, float]]:
+    """Each product's time in float32 (``aten``) and in bfloat16, in seconds, timed as the run will compute it
+    (:func:`product_call`), ~``seconds`` per product and path; the products worth computing in bfloat16 are
+    those with ``bf16 <= BF16_GAIN * float32`` (:func:`gaining_products`)."""
+    generator = torch.Generator().manual_seed(0)
+    times = {}
+    for a_shape, w_shape in dict.fromkeys(products):
+        a, w = torch.randn(a_shape, generator=generator), torch.randn(w_shape, generator=generator)
+        best = time_calls({path: [product_call(a, w, path, fused_casts)] for path in ("aten", "bf16")}, seconds)
+        times[(tuple(a_shape), tuple(w_shape))] = (best["aten"], best["bf16"])
+    return times
+
+
+def gaining_products(times: dict[Product, tuple[float, float]]) -> set[Product]:
+    """The products of :func:`bf16_faster_products`'s timings that bfloat16 computes in at most ``BF16_GAIN`` of
+    their float32 time."""
+    return {product for product, (float32, bf16) in times.items() if bf16 <= BF16_GAIN * float32}
+
+
+def layer_products(ensemble: int, rows: int, d_in: int, d_out: int) -> list[Product]:
     """The three products of a layer y = x Wᵀ over ``rows`` inputs, as (a, w) shapes for ``a @ wᵀ``: the
     forward pass, ∂L/∂x = g W and ∂L/∂W = gᵀ x."""
     return [((ensemble, rows, d_in), (ensemble, d_out, d_in)), ((ensemble, rows, d_out), (ensemble, d_in, d_out)),
             ((ensemble, d_out, rows), (ensemble, d_in, rows))]
 
 
-def measure_paths(products: Sequence[tuple[tuple[int, ...], tuple[int, ...]]], paths: Sequence[str] = FLOAT32_PATHS,
+def measure_paths(products: Sequence[Product], paths: Sequence[str] = FLOAT32_PATHS,
                   seconds: float = 0.15) -> dict[str, float]:
-    """GFLOP/s of each path on ``products`` ((a shape, w shape) pairs run back to back), ~``seconds`` each.
-
-    The paths are timed in alternation, several rounds, keeping each path's best round (the least disturbed
-    by other work on the machine)."""
+    """GFLOP/s of each path on ``products`` ((a shape, w shape) pairs run back to back), ~``seconds`` each
+    (:func:`time_calls`)."""
     generator = torch.Generator().manual_seed(0)
     operands = [(torch.randn(a, generator=generator), torch.randn(w, generator=generator)) for a, w in products]
     flops = sum(2.0 * a[0] * a[1] * a[2] * w[1] for a, w in products)
     usable = [path for path in paths if path != "onednn" or onednn_available()]
-    best = dict.fromkeys(usable, float("inf"))
-    for path in usable:  # warm-up: oneDNN builds its primitives on the first call of each shape
-        for a, w in operands:
-            ensemble_matmul(a, w, path)
-    rounds, deadline = 0, time.perf_counter() + seconds * len(usable)
-    while rounds < 3 or (time.perf_counter() < deadline and rounds < 50):
-        for path in usable:
-            start = time.perf_counter()
-            for a, w in operands:
-                ensemble_matmul(a, w, path)
-            best[path] = min(best[path], time.perf_counter() - start)
-        rounds += 1
+    best = time_calls({path: [product_call(a, w, path) for a, w in operands] for path in usable}, seconds)
     return {path: flops / elapsed / 1e9 for path, elapsed in best.items()}
 
 
