@@ -9,7 +9,8 @@ What it measures, on this machine, in this order:
      compiled; Stable-Baselines3's TD3 (MLP 256-256) when installed, as shipped and with denormal floats flushed
      to zero as our runs do (``ilcsan.rl.settings.flush_denormals``). Each figure is also given as a ratio to the
      reference engine and to both SB3 rows, and as a fraction of the step's matmul-only floor: its recorded matrix
-     products replayed back to back on the fastest float32 path (bf16 rows: on the bf16 path);
+     products replayed back to back on the fastest float32 path (bf16 rows: each product as a bf16 run computes it,
+     in bfloat16 with the casts excluded where that is faster, else in float32);
   3. K seeds trained together in one process against K times the floor of one;
   4. batch-1 action latency: the training loop's compiled acting pass and ``Policy.predict`` (eager).
 
@@ -94,12 +95,14 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
 
     Records the operand shapes of every matmul of two TD3 updates (one without and one with the delayed
     actor update) and one action, at the dispatcher (forward and backward), then replays exactly those
-    products back to back as ``a @ wᵀ`` per ensemble member on ``path`` (:mod:`ilcsan.snn.matmul`).
+    products back to back as ``a @ wᵀ`` per ensemble member on ``path`` (:mod:`ilcsan.snn.matmul`). On ``bf16``
+    each product runs as a bf16 run computes it: in bfloat16 with its operands already cast (a compiled program
+    fuses the casts) where that was measured faster, else in float32 (``aten``).
     """
     from torch.utils._python_dispatch import TorchDispatchMode
 
     from ilcsan.rl.td3 import TD3Agent
-    from ilcsan.snn.matmul import ensemble_matmul, use_matmul_path
+    from ilcsan.snn.matmul import bf16_faster_products, gaining_products, product_call, use_matmul_path
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -130,9 +133,14 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
         agent.update(batch)
         agent.act(np.zeros((k, state_dim), dtype=np.float32))
 
+    shapes = [(tuple(a.shape), tuple(w.shape)) for a, w in products]
+    bf16 = gaining_products(bf16_faster_products(shapes, fused_casts=True)) if path == "bf16" else set()
+    calls = [product_call(a, w, "bf16" if shape in bf16 else "aten" if path == "bf16" else path, fused_casts=True)
+             for (a, w), shape in zip(products, shapes, strict=True)]
+
     def replay() -> None:
-        for a, w in products:
-            ensemble_matmul(a, w, path)
+        for call in calls:
+            call()
 
     for _ in range(5):
         replay()
@@ -240,13 +248,21 @@ def cpu_model() -> str:
 
 
 def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[str, float]:
-    """GFLOP/s of every matmul path on the products of one update of ``preset`` on ``task`` (one thread)."""
+    """GFLOP/s of every matmul path on the products of a run of ``preset`` on ``task`` (one thread): each path on
+    all of them (bf16 casting its operands in the call, as eager runs do), and "bf16 per product" as a compiled
+    bf16 run computes them (bfloat16 with the casts fused where that is faster, float32 elsewhere)."""
     from ilcsan.rl.settings import run_products
-    from ilcsan.snn.matmul import MATMUL_PATHS, measure_paths
+    from ilcsan.snn.matmul import MATMUL_PATHS, bf16_faster_products, gaining_products, measure_paths
 
     torch.set_num_threads(1)
     config = RunConfig(task=task, seeds=seeds, actor=actor_config(preset))
-    return measure_paths(run_products(config, *TASK_SIZES[task]), paths=MATMUL_PATHS, seconds=0.5)
+    products = run_products(config, *TASK_SIZES[task])
+    speeds = measure_paths(products, paths=MATMUL_PATHS, seconds=0.5)
+    times = bf16_faster_products(products, fused_casts=True, seconds=0.02)
+    bf16 = gaining_products(times)
+    seconds = sum(times[product][1 if product in bf16 else 0] for product in products)
+    speeds["bf16 per product"] = sum(2.0 * a[0] * a[1] * a[2] * w[1] for a, w in products) / seconds / 1e9
+    return speeds
 
 
 def act_latency_us(task: str, calls: int = 3000) -> float:
