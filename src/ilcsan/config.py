@@ -349,9 +349,9 @@ class RunConfig:
                                    "of compiling (4000 for spiking actors, 25000 for DAN)", choices=COMPILE_MODES)
     matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
                                      "matrix shapes, measured at start (printed, and kept in config.json); bf16: "
-                                     "operands and products rounded to bfloat16 (AVX512-BF16/AMX kernels; TF32/bf16 "
-                                     "on CUDA); faster products on such CPUs, but measure: on one AMD EPYC it gave "
-                                     "1.2-1.4x per training step with one thread and was slower with two",
+                                     "operands and products rounded to bfloat16 for the product shapes it computes "
+                                     "faster on this CPU (AMX/AVX512-BF16), timed at start, float32 for the rest "
+                                     "(TF32/bf16 on CUDA); on an Intel Xeon with AMX 1.2-1.6x per training step",
                           choices=MATMUL_CHOICES)
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
