@@ -102,7 +102,7 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
     from torch.utils._python_dispatch import TorchDispatchMode
 
     from ilcsan.rl.td3 import TD3Agent
-    from ilcsan.snn.matmul import bf16_faster_products, gaining_products, product_call, use_matmul_path
+    from ilcsan.snn.matmul import gaining_products, product_call, product_times, use_matmul_path
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -134,9 +134,12 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
         agent.act(np.zeros((k, state_dim), dtype=np.float32))
 
     shapes = [(tuple(a.shape), tuple(w.shape)) for a, w in products]
-    bf16 = gaining_products(bf16_faster_products(shapes, fused_casts=True)) if path == "bf16" else set()
-    calls = [product_call(a, w, "bf16" if shape in bf16 else "aten" if path == "bf16" else path, fused_casts=True)
-             for (a, w), shape in zip(products, shapes, strict=True)]
+    if path == "bf16":  # bfloat16 where the run would use it, float32 elsewhere
+        bf16 = gaining_products(product_times(shapes, fused_casts=True))
+        paths = ["bf16" if shape in bf16 else "aten" for shape in shapes]
+    else:
+        paths = [path] * len(shapes)
+    calls = [product_call(a, w, chosen, fused_casts=True) for (a, w), chosen in zip(products, paths, strict=True)]
 
     def replay() -> None:
         for call in calls:
@@ -252,13 +255,13 @@ def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[s
     all of them (bf16 casting its operands in the call, as eager runs do), and "bf16 per product" as a compiled
     bf16 run computes them (bfloat16 with the casts fused where that is faster, float32 elsewhere)."""
     from ilcsan.rl.settings import run_products
-    from ilcsan.snn.matmul import MATMUL_PATHS, bf16_faster_products, gaining_products, measure_paths
+    from ilcsan.snn.matmul import MATMUL_PATHS, gaining_products, measure_paths, product_times
 
     torch.set_num_threads(1)
     config = RunConfig(task=task, seeds=seeds, actor=actor_config(preset))
     products = run_products(config, *TASK_SIZES[task])
     speeds = measure_paths(products, paths=MATMUL_PATHS, seconds=0.5)
-    times = bf16_faster_products(products, fused_casts=True, seconds=0.02)
+    times = product_times(products, fused_casts=True, seconds=0.02)
     bf16 = gaining_products(times)
     seconds = sum(times[product][1 if product in bf16 else 0] for product in products)
     speeds["bf16 per product"] = sum(2.0 * a[0] * a[1] * a[2] * w[1] for a, w in products) / seconds / 1e9

@@ -15,7 +15,6 @@ from ilcsan.snn.ensemble import EnsembleLinear, seed_generators
 from ilcsan.snn.matmul import (
     COMPILABLE_PATHS,
     FLOAT32_PATHS,
-    bf16_faster_products,
     bf16_operands,
     ensemble_matmul,
     fastest_float32_path,
@@ -25,6 +24,7 @@ from ilcsan.snn.matmul import (
     measure_paths,
     onednn_available,
     product_path,
+    product_times,
     use_matmul_path,
 )
 
@@ -161,7 +161,7 @@ def test_bf16_operands_come_contiguous_in_one_cast():
 
 def test_timing_both_paths_gives_every_distinct_product_two_positive_times():
     products = layer_products(1, 16, 8, 4) * 2
-    times = bf16_faster_products(products, fused_casts=True, seconds=0.0005)
+    times = product_times(products, fused_casts=True, seconds=0.0005)
     assert set(times) == set(products) and all(f32 > 0 and b16 > 0 for f32, b16 in times.values())
 
 

@@ -257,7 +257,6 @@ def test_untagged_runs_are_placed_in_a_grid_table_by_label(tmp_path: Path) -> No
     assert result.cell("self", "Hopper").n == 1
 
 
-
 def trained_run(root: Path, task: str, seed: int, returns: list[float], preset: str = "ilc-san",
                 td3: dict | None = None, **overrides) -> Path:
     """A run as ``ilcsan train`` writes it (no table or row tag; the full actor and TD3 settings)."""
@@ -286,6 +285,7 @@ def test_untagged_runs_are_placed_in_a_table_by_their_configuration(tmp_path: Pa
     assert [beyond.cell(slug, "Hopper").mean for slug in ("ilc-san", "ilc-san+proxy", "ilc-san+noisy")] == \
         pytest.approx([3500.0, 3500.0, 3300.0])
     assert beyond.cell("ilc-san", "Hopper").n == 2 and beyond.cell("dan", "Hopper").n == 0
+
 
 def test_a_corrupt_run_is_skipped_and_reported(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])

@@ -13,11 +13,11 @@ from ..errors import UserError
 from ..snn.matmul import (
     COMPILABLE_PATHS,
     Product,
-    bf16_faster_products,
     fastest_float32_path,
     gaining_products,
     layer_products,
     measure_paths,
+    product_times,
     use_matmul_path,
 )
 from .noisy_exploration import return_reference
@@ -107,7 +107,7 @@ def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> di
         return {"path": "aten", "gflops": {}}
     products, compiled = run_products(config, state_dim, action_dim), use_compile(config)
     if config.matmul == "bf16":
-        times = bf16_faster_products(products, fused_casts=compiled)
+        times = product_times(products, fused_casts=compiled)
         gaining = gaining_products(times)
         use_matmul_path("bf16", gaining)
         float32_seconds, bf16_seconds = (sum(times[product][index] for product in gaining) for index in (0, 1))

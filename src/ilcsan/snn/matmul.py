@@ -12,7 +12,7 @@ Every synaptic layer, critic layer and their gradients is one batched product ``
             by ``--matmul bf16``. oneDNN pays a fixed cost of ≈ 20 µs per bfloat16 call (measured on an AMX Xeon:
             a (100 × 14)·(14 × 256) product takes 24 µs in bfloat16 against 6 µs in float32, a (500 × 256)·(256 ×
             256) one 72 µs against 436 µs), so a bf16 run keeps its small products in float32: it times each of
-            its products both ways at start (:func:`bf16_faster_products`) and runs in bfloat16 only those that
+            its products both ways at start (:func:`product_times`) and runs in bfloat16 only those that
             gain (``use_matmul_path("bf16", products)``; :func:`product_path`).
 
 :func:`measure_paths` times the float32 paths on a run's own shapes (forward and both backward products of
@@ -102,9 +102,10 @@ def ensemble_matmul(a: torch.Tensor, w: torch.Tensor, path: str | None = None) -
 
 
 def bf16_operands(a: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``a`` and ``wᵀ`` as contiguous bfloat16 tensors, each cast in one pass. oneDNN copies a transposed bfloat16
-    operand into this layout itself, at a cost (measured: ≈ 20 copies per ILC-SAN update, 0.3 ms); made here, the
-    layout comes with the cast, which a compiled program fuses into the kernel that computes the operand."""
+    """``a`` and ``wᵀ`` as contiguous bfloat16 tensors, each cast in one pass. Handed a transposed bfloat16
+    operand, torch's bmm copies it into this layout first (torch profiler, torch 2.13: ``aten::contiguous``
+    inside the compiled ILC-SAN update, ≈ 20 copies and 0.3 ms per update); made here, the layout comes with
+    the cast, which a compiled program fuses into the kernel that computes the operand."""
     return (a.to(torch.bfloat16, memory_format=torch.contiguous_format),
             w.transpose(1, 2).to(torch.bfloat16, memory_format=torch.contiguous_format))
 
@@ -139,10 +140,10 @@ def time_calls(calls: dict[str, Sequence[Callable[[], object]]], seconds: float)
     return best
 
 
-def bf16_faster_products(products: Collection[Product], fused_casts: bool,
-                         seconds: float = 0.002) -> dict[Product, tuple[float, float]]:
-    """Each product's time in float32 (``aten``) and in bfloat16, in seconds, timed as the run will compute it
-    (:func:`product_call`), ~``seconds`` per product and path; the products worth computing in bfloat16 are
+def product_times(products: Collection[Product], fused_casts: bool,
+                  seconds: float = 0.002) -> dict[Product, tuple[float, float]]:
+    """Each distinct product's (float32, bfloat16) time in seconds, float32 on ``aten``, timed as the run will
+    compute it (:func:`product_call`), ~``seconds`` per product and path; the products worth computing in bfloat16 are
     those with ``bf16 <= BF16_GAIN * float32`` (:func:`gaining_products`)."""
     generator = torch.Generator().manual_seed(0)
     times = {}
@@ -154,7 +155,7 @@ def bf16_faster_products(products: Collection[Product], fused_casts: bool,
 
 
 def gaining_products(times: dict[Product, tuple[float, float]]) -> set[Product]:
-    """The products of :func:`bf16_faster_products`'s timings that bfloat16 computes in at most ``BF16_GAIN`` of
+    """The products of :func:`product_times`'s timings that bfloat16 computes in at most ``BF16_GAIN`` of
     their float32 time."""
     return {product for product, (float32, bf16) in times.items() if bf16 <= BF16_GAIN * float32}
 
