@@ -9,7 +9,7 @@ Every synaptic layer, critic layer and their gradients is one batched product ``
             (and AMX's float32 paths where present) on both vendors.
 ``bf16``    ``torch.bmm`` on contiguous bfloat16 copies of both operands (``a`` and ``wᵀ``), the product rounded to
             bfloat16 and returned as float32 (AMX or AVX512-BF16 kernels through oneDNN). Not float32: chosen only
-            by ``--matmul bf16``. oneDNN pays a fixed cost of ≈ 20 µs per bfloat16 call (measured on an AMX Xeon:
+            by ``--matmul bf16``. A bfloat16 call costs ≈ 20 µs even for tiny products (measured on an AMX Xeon:
             a (100 × 14)·(14 × 256) product takes 24 µs in bfloat16 against 6 µs in float32, a (500 × 256)·(256 ×
             256) one 72 µs against 436 µs), so a bf16 run keeps its small products in float32: it times each of
             its products both ways at start (:func:`product_times`) and runs in bfloat16 only those that
