@@ -109,21 +109,27 @@ def test_compiled_update_program_equals_the_eager_update(preset):
 
 @pytest.fixture
 def _restore_matmul_settings():
-    before, path = torch.get_float32_matmul_precision(), matmul_path()
+    before, path, threads = torch.get_float32_matmul_precision(), matmul_path(), torch.get_num_threads()
     yield
     torch.set_float32_matmul_precision(before)
     use_matmul_path(path)
+    torch.set_num_threads(threads)
 
 
-def test_matmul_option_sets_the_path_and_rejects_unknown_names(tmp_path, _restore_matmul_settings):
+def test_matmul_option_sets_the_path_for_the_run_and_close_gives_the_process_its_settings_back(
+        tmp_path, _restore_matmul_settings):
     torch.set_float32_matmul_precision("medium")
+    torch.set_num_threads(2)
     trainer = Trainer(tiny_run(matmul="bf16", steps=10), tmp_path / "bf16", progress=False, log=lambda *_: None)
-    trainer.close()
     # on a CPU the bf16 path rounds the products it chose itself; torch's precision keeps every other one float32
     assert matmul_path() == "bf16" and torch.get_float32_matmul_precision() == "highest"
-    trainer = Trainer(tiny_run(steps=10), tmp_path / "f32", progress=False, log=lambda *_: None)
+    assert torch.get_num_threads() == 1  # tiny_run's --threads
     trainer.close()
+    assert matmul_path() == "aten" and torch.get_float32_matmul_precision() == "medium"
+    assert torch.get_num_threads() == 2
+    trainer = Trainer(tiny_run(steps=10), tmp_path / "f32", progress=False, log=lambda *_: None)
     assert matmul_path() != "bf16" and torch.get_float32_matmul_precision() == "highest"
+    trainer.close()
     with pytest.raises(UserError, match="--matmul 'fp8' is not one of: float32, bf16"):
         Trainer(tiny_run(matmul="fp8"), tmp_path / "bad", progress=False, log=lambda *_: None)
 

@@ -4,6 +4,7 @@ precision, and whether to compile."""
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from itertools import pairwise
 
 import torch
@@ -16,6 +17,7 @@ from ..snn.matmul import (
     fastest_float32_path,
     gaining_products,
     layer_products,
+    matmul_setting,
     measure_paths,
     product_times,
     use_matmul_path,
@@ -132,6 +134,29 @@ def describe_matmul_choice(choice: dict) -> str:
     speeds = ", ".join(f"{name} {value:.0f}" + (" (eager runs only)" if choice["compiled"] and name not in
                                                   COMPILABLE_PATHS else "") for name, value in choice["gflops"].items())
     return f"matmul: {choice['path']} (float32 GFLOP/s on this run's products: {speeds})"
+
+
+@dataclass(frozen=True)
+class ProcessSettings:
+    """What a run changes in its process, as it was before: this thread's denormal flag, torch's thread count and
+    float32 matmul precision, and the matmul path with its bf16 products (:mod:`ilcsan.snn.matmul`)."""
+
+    denormals_flushed: bool
+    threads: int
+    precision: str
+    matmul: tuple
+
+    @classmethod
+    def now(cls) -> ProcessSettings:
+        return cls(denormals_flushed(), torch.get_num_threads(), torch.get_float32_matmul_precision(),
+                   matmul_setting())
+
+    def restore(self) -> None:
+        """Give the process these settings back (a program compiled meanwhile keeps the path it was traced with)."""
+        flush_denormals(self.denormals_flushed)
+        torch.set_num_threads(self.threads)
+        torch.set_float32_matmul_precision(self.precision)
+        use_matmul_path(*self.matmul)
 
 
 def apply_to_process(config: RunConfig) -> None:

@@ -36,11 +36,10 @@ from .normalizer import RunningNormalizer
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
 from .settings import (
+    ProcessSettings,
     apply_to_process,
     choose_matmul_path,
-    denormals_flushed,
     describe_matmul_choice,
-    flush_denormals,
     use_compile,
     validate_run,
 )
@@ -57,7 +56,7 @@ class Trainer:
 
     def __init__(self, config: RunConfig, out: Path, resume: bool = False, progress: bool | None = None,
                  log=print):
-        self.denormals_were_flushed = denormals_flushed()  # given back at close()
+        self.process_settings = ProcessSettings.now()  # given back at close()
         validate_run(config)
         self.config = config
         self.directories = [RunDirectory(path) for path in run_directories(Path(out), config.seeds)]
@@ -213,9 +212,9 @@ class Trainer:
                 for index, directory in enumerate(self.directories)]
 
     def close(self) -> None:
-        """Close the reporters, environments and locks, and give this thread its denormal setting back (safe to
-        call twice)."""
-        flush_denormals(self.denormals_were_flushed)
+        """Close the reporters, environments and locks, and give the process the settings the run changed back
+        (:class:`~ilcsan.rl.settings.ProcessSettings`; safe to call twice)."""
+        self.process_settings.restore()
         self.callbacks.close()
         for env in (env for row in self.eval_envs for env in row):
             env.close()

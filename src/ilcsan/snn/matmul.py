@@ -57,6 +57,11 @@ def use_matmul_path(path: str, bf16_products: Collection[Product] | None = None)
     _bf16_products = None if bf16_products is None else frozenset(bf16_products)
 
 
+def matmul_setting() -> tuple[str, frozenset[Product] | None]:
+    """This process's path and bf16 product list, as :func:`use_matmul_path` takes them back."""
+    return _path, _bf16_products
+
+
 def matmul_path() -> str:
     """The path this process's products run on (with ``bf16``, those :func:`product_path` keeps in bfloat16)."""
     return _path
