@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..deploy.runtime.host import normalize
 from ..errors import UserError
 
 DEFAULT_CLIP = 3.0
@@ -42,10 +43,10 @@ class RunningNormalizer:
         return np.sqrt(self.variance + EPSILON)
 
     def normalize(self, observations: np.ndarray) -> np.ndarray:
-        """(K, ..., N) raw observations → clipped z-scores, float32."""
+        """(K, ..., N) raw observations → clipped z-scores, float32: the deployed actor's normaliser
+        (:func:`ilcsan.deploy.runtime.host.normalize`) with each seed's current statistics."""
         shape = (self.mean.shape[0],) + (1,) * (observations.ndim - 2) + (self.mean.shape[1],)
-        mean, std = self.mean.reshape(shape), self.std.reshape(shape)
-        return np.clip((observations - mean) / std, -self.clip, self.clip).astype(np.float32)
+        return normalize(observations, self.mean.reshape(shape), self.std.reshape(shape), self.clip)
 
     def state(self, seed_index: int) -> dict:
         return {"count": float(self.count[seed_index]), "mean": self.mean[seed_index].copy(),

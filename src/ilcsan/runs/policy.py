@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from ..config import ActorConfig
+from ..deploy.runtime.host import normalize
 from ..errors import UserError
 from ..files import safe_torch_load
 from ..snn.actor import build_actor
@@ -66,7 +67,7 @@ class Policy:
         return int(self.action_scale.shape[0])
 
     def normalize(self, observation: np.ndarray) -> np.ndarray:
-        return np.clip((observation - self.obs_mean) / self.obs_std, -self.obs_clip, self.obs_clip).astype(np.float32)
+        return normalize(observation, self.obs_mean, self.obs_std, self.obs_clip)
 
     def check_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
         """Validate shape and values; returns a (B, N) float64 array and whether the input was single."""
