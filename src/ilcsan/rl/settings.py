@@ -30,7 +30,11 @@ COMPILE_PAYS_AFTER_UPDATES = {"spiking": 4_000, "deep": 25_000}
 Measured on a 2-core AMD EPYC (Hopper, one thread): compiling the update program and the acting pass takes
 about 50 s the first time and 10-15 s once inductor's cache holds them; it then saves about 12 ms per ILC-SAN
 update (eager 18.5 → 6.5 ms per step) and about 2 ms per DAN update (5.5 → 3.6 ms), so even a first compilation
-repays itself after ~4 000 and ~25 000 updates."""
+repays itself after ~4 000 and ~25 000 updates. On the Intel Xeon (AMX) of ``benchmarks/RESULTS.md``
+(2026-12-02, 1 100 steps compiled against eager, empty and warm inductor cache): ILC-SAN's compilation costs ≈ 62 s
+the first time and ≈ 12 s cached and saves 12.3 ms per update (16.8 → 4.4-4.7 ms per step), repaid after ≈ 5 000
+and ≈ 1 000 updates; DAN's ≈ 34 s and ≈ 7 s, saving 3.4 ms (5.9 → 2.4-2.6 ms), repaid after ≈ 10 000 and ≈ 2 000.
+The thresholds are the AMD machine's (DAN's, the slower to repay, is kept for both)."""
 
 
 def validate_run(config: RunConfig) -> None:
