@@ -34,7 +34,8 @@ repays itself after ~4 000 and ~25 000 updates. On the Intel Xeon (AMX) of ``ben
 (2026-12-02, 1 100 steps compiled against eager, empty and warm inductor cache): ILC-SAN's compilation costs ≈ 62 s
 the first time and ≈ 12 s cached and saves 12.3 ms per update (16.8 → 4.4-4.7 ms per step), repaid after ≈ 5 000
 and ≈ 1 000 updates; DAN's ≈ 34 s and ≈ 7 s, saving 3.4 ms (5.9 → 2.4-2.6 ms), repaid after ≈ 10 000 and ≈ 2 000.
-The thresholds are the AMD machine's (DAN's, the slower to repay, is kept for both)."""
+The thresholds are the AMD machine's: ILC-SAN's lies between the Intel machine's first-compilation and cached
+break-even points, DAN's above both machines' first-compilation ones."""
 
 
 def validate_run(config: RunConfig) -> None:
