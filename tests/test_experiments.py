@@ -372,6 +372,27 @@ def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch
     assert list_tables([TABLES["layer"]], 100.0, 2).count("estimate:") == 1
 
 
+@pytest.mark.parametrize("vendor, speed", [("GenuineIntel", 180.0), ("AuthenticAMD", 130.0), (None, 130.0),
+                                           ("HygonGenuine", 130.0)])
+def test_estimates_use_the_speed_measured_on_this_kind_of_cpu(monkeypatch, vendor, speed):
+    from ilcsan.experiments import estimate
+
+    monkeypatch.delenv("ILCSAN_STEPS_PER_SECOND", raising=False)
+    monkeypatch.setattr(estimate, "cpu_vendor", lambda: vendor)
+    assert estimate.steps_per_second_default() == speed
+    footer = list_tables([TABLES["layer"]], cores=2).split("\n\n")[-1]
+    assert f"assume {speed:g} steps/s" in footer
+    assert (f"DAN {estimate.DAN_STEP_COST:g}, Proxy Target 1 + {estimate.PROXY_COST_PER_ITERATION:g}·K, "
+            f"NoisySAN {estimate.NOISY_STEP_COST:g}") in footer
+
+
+def test_the_cpu_vendor_is_read_from_this_machine():
+    from ilcsan.experiments.estimate import cpu_vendor
+
+    vendor = cpu_vendor()
+    assert vendor is None or vendor.isalnum()  # "GenuineIntel", "AuthenticAMD": the value alone, no ": "
+
+
 @pytest.mark.parametrize("argv, fragments", [
     (("reproduce", "tabel"), ("no table 'tabel'", "perf")),
     (("reproduce",), ("name a table",)),

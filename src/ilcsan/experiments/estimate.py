@@ -10,15 +10,14 @@ from ..config import TD3Config
 from ..errors import UserError
 from .tables import TABLES, RowSpec, TableSpec
 
-DEFAULT_STEPS_PER_SECOND = 130.0
+MEASURED_STEPS_PER_SECOND = {"AuthenticAMD": 130.0, "GenuineIntel": 180.0}
 """Environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations
-included: the speed :func:`estimate_hours` and ``reproduce --list`` assume unless ``ILCSAN_STEPS_PER_SECOND``
-gives the user's own measurement. ``benchmarks/speed.py`` on a 2-core AMD EPYC (2026-11-30, benchmarks/RESULTS.md):
-133 training steps/s with the update compiled as one program (float32; the default for runs of more than 4 000
-updates), 49 with the reference engine; the Intel machine of the same file runs 212–215 (its slower figure is the
-default, so that estimates hold on both kinds of machine). The protocol's evaluations (10 episodes every 10 000
-steps) run all episodes in lockstep, about one batched action and ten environment steps per evaluation step,
-which costs about 1 % of the training time."""
+included, on the two kinds of machine this project runs on, by the CPU's vendor: the speed :func:`estimate_hours`
+and ``reproduce --list`` assume unless ``ILCSAN_STEPS_PER_SECOND`` gives the user's own measurement.
+``benchmarks/RESULTS.md``, compiled update program, float32: a 2-core AMD EPYC (Zen 4; 2026-11-30) ran 133 training
+steps/s; a 2-core Intel Xeon (AMX; 2026-12-02, ``benchmarks/ratios.py``) 183-200, median 188, and the protocol's
+evaluations (10 episodes in lockstep every 10 000 steps) add ≈ 4 % (a timed 1 000 000-step run), so 180. Another
+vendor gets the slower figure."""
 
 DAN_STEP_COST = 0.6
 """Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper): 133/233 on the AMD
@@ -36,11 +35,24 @@ EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
 
 
+def cpu_vendor() -> str | None:
+    """The CPU's vendor string (``GenuineIntel``, ``AuthenticAMD``) from /proc/cpuinfo; None where unreadable."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as stream:
+            for line in stream:
+                if line.startswith("vendor_id"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return None
+
+
 def steps_per_second_default() -> float:
-    """The steps/s figure for estimates: ``ILCSAN_STEPS_PER_SECOND`` if set, else the documented default."""
+    """The steps/s figure for estimates: ``ILCSAN_STEPS_PER_SECOND`` if set, else the figure measured on a machine
+    with this CPU's vendor (:data:`MEASURED_STEPS_PER_SECOND`), else the slower of those."""
     text = os.environ.get(STEPS_PER_SECOND_ENV)
     if not text:
-        return DEFAULT_STEPS_PER_SECOND
+        return MEASURED_STEPS_PER_SECOND.get(cpu_vendor(), min(MEASURED_STEPS_PER_SECOND.values()))
     try:
         value = float(text)
     except ValueError:
@@ -122,7 +134,8 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
     blocks = [describe_table(spec, speed, cores) for spec in (specs or TABLES.values())]
     footer = (f"Estimates assume {speed:g} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
               f"evaluations included; set {STEPS_PER_SECOND_ENV} to your own measurement) and one run per core; "
-              "a run's hours = steps × its row's cost / (steps/s) / 3600 (DAN 0.6, Proxy Target 1 + 1.1·K, NoisySAN "
-              "1.75, measured), dealt longest first to the cores. Shrink a table with --seeds, --steps, "
-              "--tasks, --rows; run it on a cluster with --backend ray --address HOST:PORT.")
+              f"a run's hours = steps × its row's cost / (steps/s) / 3600 (DAN {DAN_STEP_COST:g}, Proxy Target "
+              f"1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}, measured), dealt longest first to "
+              "the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a cluster with --backend "
+              "ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])
