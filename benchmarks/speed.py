@@ -12,7 +12,7 @@ What it measures, on this machine, in this order:
      products replayed back to back on the fastest float32 path (bf16 rows: each product as a bf16 run computes it,
      in bfloat16 with the casts excluded where that is faster, else in float32);
   3. K seeds trained together in one process against K times the floor of one;
-  4. batch-1 action latency: the training loop's compiled acting pass and ``Policy.predict`` (eager).
+  4. batch-1 action latency: the training loop's compiled acting pass and ``Policy.predict``, eager and compiled.
 
 Steps/s are measured after a warm-up (compilation happens there), with updates from the start (no random-action
 phase), and without evaluations. Run it on an otherwise idle machine:
@@ -215,7 +215,8 @@ def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush: bool) -> 
     return steps / (time.perf_counter() - start)
 
 
-def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
+def predict_latency_us(preset: str, task: str, calls: int = 2000, compiled: bool = False) -> float:
+    """Median µs of ``Policy.predict`` for one observation, one thread: eager, or after ``Policy.compile``."""
     from ilcsan.runs.policy import Policy
     from ilcsan.snn.actor import build_actor
 
@@ -225,6 +226,8 @@ def predict_latency_us(preset: str, task: str, calls: int = 2000) -> float:
     actor = build_actor(config, state_dim, action_dim, [1.0] * action_dim).eval()
     policy = Policy(actor, config, task, np.zeros(state_dim), np.ones(state_dim), 3.0, np.ones(action_dim),
                     np.zeros(action_dim), {})
+    if compiled:
+        policy.compile()
     observation = np.random.default_rng(0).normal(size=state_dim)
     return median_call_us(lambda: policy.predict(observation), calls)
 
@@ -362,7 +365,8 @@ def main() -> None:
     emit()
     for task in args.tasks.split(","):
         emit(f"Batch-1 action latency, ILC-SAN on {task}, 1 thread (median): training loop's compiled acting pass "
-             f"{act_latency_us(task):.0f} µs; Policy.predict (eager) {predict_latency_us('ilc-san', task):.0f} µs.")
+             f"{act_latency_us(task):.0f} µs; Policy.predict eager {predict_latency_us('ilc-san', task):.0f} µs, "
+             f"compiled {predict_latency_us('ilc-san', task, compiled=True):.0f} µs.")
     emit()
     emit(f"Measured from {started} to {time.strftime('%H:%M UTC', time.gmtime())}.")
     if args.out:

@@ -41,6 +41,17 @@ def test_predict_single_and_batch(trained_run):
     assert policy.predict(observation)[0] == action[0], "predict is deterministic"
 
 
+def test_a_compiled_policy_predicts_the_eager_actions_for_each_batch_size(trained_run):
+    eager, compiled = ilcsan.load(trained_run), ilcsan.load(trained_run, compile=True)
+    assert compiled.compiled and not eager.compiled
+    observations = np.random.default_rng(0).normal(size=(5, 3)) * [1.0, 1.0, 4.0]
+    for batch in (observations[0], observations, observations[:2]):  # batch 1, 5, 2: a program each
+        np.testing.assert_allclose(compiled.predict(batch), eager.predict(batch), atol=1e-5)
+    assert len(compiled.forward.programs) == 3
+    with pytest.raises(UserError, match="NaN"):  # validated before the program runs
+        compiled.predict(np.array([np.nan, 0.0, 0.0]))
+
+
 def test_predict_uses_the_frozen_normaliser(trained_run):
     policy = ilcsan.load(trained_run)
     observation = np.array([0.3, -0.2, 1.0])

@@ -14,11 +14,12 @@ from .errors import UserError
 __version__ = "0.1.0"
 
 
-def load(path):
-    """Load a trained actor (run directory, policy.pt or checkpoint.pt) as a :class:`~ilcsan.runs.policy.Policy`."""
+def load(path, compile=False):
+    """Load a trained actor (run directory, policy.pt or checkpoint.pt) as a :class:`~ilcsan.runs.policy.Policy`;
+    ``compile=True`` makes its ``predict`` run compiled programs (:meth:`~ilcsan.runs.policy.Policy.compile`)."""
     from .runs.policy import load as load_policy
 
-    return load_policy(path)
+    return load_policy(path, compile=compile)
 
 
 __all__ = ["ActorConfig", "RunConfig", "TD3Config", "PRESETS", "actor_config", "load", "UserError", "__version__"]
