@@ -170,12 +170,11 @@ def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
 
     Checkpoints hold the action bounds; for older ones without them the task's environment is built once
     to read them."""
-    from ..rl.normalizer import EPSILON
+    from ..rl.normalizer import RunningNormalizer
 
-    normalizer, config = data["normalizer"], data["config"]
-    count = float(normalizer["count"])
-    m2 = np.asarray(normalizer["m2"])
-    variance = m2 / max(count, 1.0) if count > 0 else np.ones_like(m2)
+    config = data["config"]
+    normalizer = RunningNormalizer(1, len(data["normalizer"]["mean"]))
+    normalizer.load(0, data["normalizer"])
     if "action_scale" in data and "action_offset" in data:
         scale, offset = data["action_scale"], data["action_offset"]
     else:
@@ -185,8 +184,8 @@ def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
         scale, offset = action_bounds(env)
         env.close()
     return {"actor_config": config["actor"], "state_dim": data["state_dim"], "action_dim": data["action_dim"],
-            "action_scale": scale, "action_offset": offset, "obs_mean": np.asarray(normalizer["mean"]),
-            "obs_std": np.sqrt(variance + EPSILON), "obs_clip": normalizer["clip"], "task": config["task"],
+            "action_scale": scale, "action_offset": offset, "obs_mean": normalizer.mean[0],
+            "obs_std": normalizer.std[0], "obs_clip": normalizer.clip, "task": config["task"],
             "step": data["step"], "seed": config.get("seed")}
 
 
