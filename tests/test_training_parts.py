@@ -15,7 +15,7 @@ import torch
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl.callbacks import ProgressReport, TensorBoardLog, best_so_far
-from ilcsan.rl.evaluation import evaluate_policy, run_lockstep, training_evaluation_seed
+from ilcsan.rl.evaluation import episode_seed, evaluate_policy, run_lockstep, training_evaluation_seed
 from ilcsan.rl.rollout import TrainingEnvironments
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import Trainer
@@ -194,6 +194,19 @@ def test_evaluate_with_the_training_seed_replays_the_training_evaluation(trained
     evaluation = policy.info["step"] // 150  # the trained_run fixture evaluates every 150 steps
     returns, _ = evaluate_policy(policy, episodes=1, seed=training_evaluation_seed(0, evaluation))
     assert returns[0] == pytest.approx(policy.info["eval_return_mean"], rel=1e-4)
+
+
+def test_evaluate_steps_all_episodes_with_one_predict_call_and_equals_them_played_alone(trained_run):
+    policy = load(trained_run)
+    calls = []
+    predict = policy.predict
+    policy.predict = lambda observations: calls.append(observations.shape) or predict(observations)
+    returns, lengths = evaluate_policy(policy, episodes=3, seed=40)
+    policy.predict = predict
+    assert set(calls) == {(3, 3)} and len(calls) == max(lengths)  # (episodes, N) per step, one call
+    for episode in range(3):
+        alone, length = evaluate_policy(policy, episodes=1, seed=episode_seed(40, episode))
+        assert returns[episode] == pytest.approx(alone[0], rel=1e-5) and lengths[episode] == length[0]
 
 
 # ------------------------------------------------------------------------------------- reporters

@@ -65,12 +65,16 @@ def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarra
     return returns.tolist(), lengths.tolist()
 
 
-def run_episodes(act, task: str, episodes: int, seed: int = 0) -> tuple[list[float], list[int]]:
+def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False
+                 ) -> tuple[list[float], list[int]]:
     """Run ``episodes`` episodes of ``task`` with ``act(observation) -> action``, episode ``e`` seeded
-    ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths."""
+    ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths.
+    ``batched``: ``act`` maps all episodes' observations (E, N) to their actions (E, M) in one call."""
     envs = make_envs(task, episodes)
     try:
         def act_all(observations: np.ndarray) -> np.ndarray:
+            if batched:
+                return act(observations[0].copy())[None]
             return np.stack([act(observation.copy()) for observation in observations[0]])[None]
 
         returns, lengths = run_lockstep([envs], act_all, [seed])
@@ -82,7 +86,8 @@ def run_episodes(act, task: str, episodes: int, seed: int = 0) -> tuple[list[flo
 
 def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None):
     """The deterministic policy's returns and lengths over ``episodes`` episodes (Section IV-A), seeded as
-    the module docstring says (``seed`` is the first episode's seed)."""
+    the module docstring says (``seed`` is the first episode's seed); one ``predict`` call per step for all
+    episodes, as the training loop evaluates."""
     task = task or policy.task
     env = make_env(task)
     shape = env.observation_space.shape
@@ -90,7 +95,7 @@ def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None 
     if shape != (policy.state_dim,):
         raise UserError(f"task {task!r} has observations of shape {shape}; the policy was trained for "
                         f"({policy.state_dim},)")
-    return run_episodes(policy.predict, task, episodes, seed)
+    return run_episodes(policy.predict, task, episodes, seed, batched=True)
 
 
 def random_policy_return(task: str, episodes: int = 5, seed: int = 0) -> float:
