@@ -12,6 +12,7 @@ import torch
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
+from ilcsan.rl import training
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import Trainer, train
 from ilcsan.snn.matmul import matmul_path, use_matmul_path
@@ -214,6 +215,51 @@ def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
     assert [r["eval_return_mean"] for r in resumed] == [r["eval_return_mean"] for r in straight]
     result = json.loads((tmp_path / "interrupted" / "result.json").read_text())
     assert result["finished"] and result["steps_done"] == 450
+
+
+def test_a_timed_checkpoint_between_evaluations_resumes_to_the_same_curve(tmp_path, monkeypatch):
+    config = tiny_run(steps=450)  # evaluations at 150, 300, 450
+    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
+    written, original = [], Trainer._write_checkpoints
+
+    def crash_after_the_timed_checkpoint(self):
+        original(self)
+        written.append(self.step)
+        if self.step == 220:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "_checkpoint_due", lambda self: self.step == 220)  # as if the minutes had passed
+    monkeypatch.setattr(Trainer, "_write_checkpoints", crash_after_the_timed_checkpoint)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, tmp_path / "interrupted", progress=False, log=lambda *_: None)
+    monkeypatch.undo()
+    assert written == [150, 220]
+    assert torch.load(tmp_path / "interrupted" / "checkpoint.pt", weights_only=False)["step"] == 220
+    assert len(read_metrics(tmp_path / "interrupted" / "metrics.csv")) == 1
+    train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
+    straight = read_metrics(tmp_path / "straight" / "metrics.csv")
+    resumed = read_metrics(tmp_path / "interrupted" / "metrics.csv")
+    assert [r["eval_return_mean"] for r in resumed] == [r["eval_return_mean"] for r in straight]
+
+
+def test_checkpoints_are_due_after_the_minutes_given(tmp_path, monkeypatch):
+    trainer = Trainer(tiny_run(checkpoint_minutes=2.0), tmp_path / "run", progress=False, log=lambda *_: None)
+    try:
+        now = [1000.0]
+        monkeypatch.setattr(training.time, "perf_counter", lambda: now[0])
+        trainer._clock = training.TrainingClock(0)
+        now[0] += 119.0
+        assert not trainer._checkpoint_due()
+        now[0] += 1.0
+        assert trainer._checkpoint_due()
+        assert trainer._clock.stop() == 120.0  # training time counted up to the checkpoint
+        trainer._clock.restart(checkpointed=True)
+        assert not trainer._checkpoint_due()
+        trainer.config = dataclasses.replace(trainer.config, checkpoint_minutes=0.0)
+        now[0] += 10_000.0
+        assert not trainer._checkpoint_due()  # 0: at evaluations only
+    finally:
+        trainer.close()
 
 
 def test_a_finished_run_resumed_with_a_larger_budget_continues_as_if_started_with_it(tmp_path):

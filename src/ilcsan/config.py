@@ -353,6 +353,9 @@ class RunConfig:
                                      "faster on this CPU (AMX/AVX512-BF16), timed at start, float32 for the rest "
                                      "(TF32/bf16 on CUDA); on an Intel Xeon with AMX 1.2-1.6x per training step",
                           choices=MATMUL_CHOICES)
+    checkpoint_minutes: float = setting(10.0, "also checkpoint after this many minutes of training since the last "
+                                              "checkpoint, between evaluations (0: at evaluations only), so that an "
+                                              "interrupted run loses at most that much", bounds="non-negative")
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`

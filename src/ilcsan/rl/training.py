@@ -106,21 +106,29 @@ class Trainer:
         result."""
         config = self.config
         losses: dict[str, float] = {}
-        last_time, last_step = time.perf_counter(), self.step
+        self._clock = TrainingClock(self.step)
         try:
             self.callbacks.start(self)
             while self.step < config.steps:
                 losses = self.train_step() or losses
                 if self.step % config.eval_every == 0 or self.step == config.steps:
-                    now = time.perf_counter()
-                    self.wall_seconds += now - last_time
-                    speed = (self.step - last_step) / max(now - last_time, 1e-9)
+                    self.wall_seconds += self._clock.stop()
+                    speed = self._clock.speed(self.step)
                     self._after_evaluation(self.evaluate(), speed, losses)
-                    last_time, last_step = time.perf_counter(), self.step
+                    self._clock.restart(self.step, checkpointed=True)
+                elif self._checkpoint_due():
+                    self.wall_seconds += self._clock.stop()
+                    self._write_checkpoints()
+                    self._clock.restart(checkpointed=True)
                 self.callbacks.step(self)
         finally:
             self.close()
         return self.results()
+
+    def _checkpoint_due(self) -> bool:
+        """Whether ``checkpoint_minutes`` of training have passed since the last checkpoint (between evaluations)."""
+        minutes = self.config.checkpoint_minutes
+        return minutes > 0 and self._clock.since_checkpoint() >= 60.0 * minutes
 
     def train_step(self) -> dict[str, float] | None:
         """One environment step per seed: act, step, store, and TD3's updates when they are due."""
@@ -222,6 +230,35 @@ class Trainer:
         for lock in self.locks:
             lock.close()
         self.eval_envs, self.locks = [], []
+
+
+class TrainingClock:
+    """Training time, without evaluations and checkpoint writing: the run's ``wall_seconds``, the steps/s since the
+    last evaluation, and the time since the last checkpoint."""
+
+    def __init__(self, step: int):
+        self.mark = self.checkpointed = time.perf_counter()
+        self.interval_seconds, self.interval_start = 0.0, step
+
+    def stop(self) -> float:
+        """Seconds of training since the last (re)start, added to the interval's."""
+        elapsed = time.perf_counter() - self.mark
+        self.interval_seconds += elapsed
+        return elapsed
+
+    def speed(self, step: int) -> float:
+        return (step - self.interval_start) / max(self.interval_seconds, 1e-9)
+
+    def restart(self, step: int | None = None, checkpointed: bool = False) -> None:
+        """Count training time again; with ``step``, a new interval (an evaluation) starts there."""
+        self.mark = time.perf_counter()
+        if checkpointed:
+            self.checkpointed = self.mark
+        if step is not None:
+            self.interval_seconds, self.interval_start = 0.0, step
+
+    def since_checkpoint(self) -> float:
+        return time.perf_counter() - self.checkpointed
 
 
 def sample_minibatch(replay: ReplayBuffer, normalizer: RunningNormalizer, rngs: list[np.random.Generator],
