@@ -7,9 +7,9 @@ ordinary run folder (:mod:`ilcsan.runs.directory`) whose ``config.json`` carries
 
 Running the same command again continues the grid: a finished run (``result.json`` says ``finished``)
 is skipped and never touched, an interrupted one resumes from its ``checkpoint.pt`` (training resumes
-exactly), a run that never reached its first evaluation starts again. Runs whose ``config.json`` was
-written with other settings stop the command before anything starts: use the same options, or another
-``--out``.
+exactly), a run that never wrote a checkpoint (at its first evaluation, or after ``checkpoint_minutes`` of
+training) starts again. Runs whose ``config.json`` was written with other settings stop the command before
+anything starts: use the same options, or another ``--out``.
 
 The unfinished runs are cut into jobs (:mod:`.jobs`: the seeds of a cell train together in one process)
 and handed to a backend (:mod:`.backends`: local worker processes or Ray), which :func:`run_grid` keeps
