@@ -188,14 +188,14 @@ def _stub_train(config, out, resume=False, progress=None, log=print):
     return [dict(result, best_return=-1.0, best_step=config.eval_every) for result in trainer.results()]
 
 
-def _one_action_episodes(act, task, episodes, seed=0):
+def _one_action_episodes(act, task, episodes, seed=0, batched=False):
     """Stands in for evaluation.run_episodes: the real environment and one real action, not whole episodes."""
     from ilcsan.rl.tasks import make_env
 
     env = make_env(task)
     try:
         observation, _ = env.reset(seed=seed)
-        action = np.asarray(act(observation))
+        action = np.asarray(act(observation[None])[0] if batched else act(observation))
         assert action.shape == env.action_space.shape and np.all(np.isfinite(action))
     finally:
         env.close()
