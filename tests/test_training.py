@@ -202,6 +202,16 @@ def assert_same_updates(eager, compiled, batches, atol: float) -> None:
             assert torch.allclose(p_eager, p_compiled, atol=atol), f"{module}.{name}"
 
 
+def test_a_run_that_cannot_start_leaves_the_process_settings_as_they_were(tmp_path, _restore_matmul_settings):
+    train(tiny_run(steps=10, eval_every=10), tmp_path / "run", progress=False, log=lambda *_: None)
+    torch.set_num_threads(2)
+    torch.set_float32_matmul_precision("high")
+    with pytest.raises(UserError, match="--resume"):  # the folder holds a run: refused after the settings applied
+        Trainer(tiny_run(steps=10, eval_every=10, matmul="bf16"), tmp_path / "run", progress=False,
+                log=lambda *_: None)
+    assert (torch.get_num_threads(), torch.get_float32_matmul_precision(), matmul_path()) == (2, "high", "aten")
+
+
 def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
     config = tiny_run(steps=450)
     train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
