@@ -67,6 +67,20 @@ def test_cell_is_mean_and_population_std_of_each_seeds_best_evaluation(tmp_path:
     assert cell.std != pytest.approx(np.std([3500, 3600, 3650], ddof=1))
 
 
+def test_the_report_states_the_budget_and_flags_short_cells_beside_the_papers_values(tmp_path: Path) -> None:
+    intra_run(tmp_path / "short", "Hopper", "intra", 0, [1000, 3500, 3200])  # 30 000 steps
+    short = render_markdown(build_table(collect_runs(tmp_path / "short"), "intra"))
+    assert "Steps per seed run: 30 000; 1 cell(s) beside a published value trained fewer than the paper's " \
+           "1 000 000 steps: not its protocol" in short
+    intra_run(tmp_path / "full", "Hopper", "intra", 0, [3000.0] * 100)  # 100 evaluations every 10 000 steps
+    intra_run(tmp_path / "full", "Hopper", "none", 0, [2000.0] * 100)
+    full = render_markdown(build_table(collect_runs(tmp_path / "full"), "intra"))
+    assert "Steps per seed run: 1 000 000." in full and "not comparable" not in full
+    intra_run(tmp_path / "full", "Ant", "intra", 0, [900.0, 950.0])  # a second budget in the same table
+    mixed = render_markdown(build_table(collect_runs(tmp_path / "full"), "intra"))
+    assert "Steps per seed run: 20 000 to 1 000 000 (they differ between runs); 1 cell(s)" in mixed
+
+
 def test_result_json_is_the_score_when_present(tmp_path: Path) -> None:
     run = intra_run(tmp_path, "Ant", "intra", 0, [100, 200])
     result = json.loads((run / "result.json").read_text())

@@ -11,6 +11,7 @@ import csv
 import io
 from collections.abc import Sequence
 
+from ..experiments.tables import STEPS
 from .collect import SkippedRun
 from .followups import FOLLOW_UPS, NOT_FOUND
 from .tables import Cell, RowResult, TableResult
@@ -99,12 +100,36 @@ def _md_table(result: TableResult) -> list[str]:
         cells = [_md_cell(cell) for cell in row.cells]
         lines.append("| " + " | ".join([label, *cells, _md_apr(row, len(result.tasks))]) + " |")
     lines += ["", f"APR reference (DAN): {result.reference}."]
+    budget = budget_text(result)
+    if budget:
+        lines.append(budget)
     missing = result.missing
     if missing:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
         lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
     lines.append("")
     return lines + _md_follow_ups(result)
+
+
+def _steps(count: int) -> str:
+    return f"{count:,}".replace(",", " ")
+
+
+def budget_text(result: TableResult) -> str | None:
+    """The steps the table's seed runs trained (one figure, or the range when cells differ), and a warning when a
+    cell shown beside the paper's value trained fewer steps than the paper's protocol (:data:`STEPS`): such a
+    cell is not the paper's protocol and its value is not comparable with the published one."""
+    cells = [cell for row in result.rows for cell in row.cells]
+    budgets = sorted({run.steps_done for cell in cells for run in cell.runs})
+    if not budgets:
+        return None
+    text = (f"Steps per seed run: {_steps(budgets[0])}" if len(budgets) == 1 else
+            f"Steps per seed run: {_steps(budgets[0])} to {_steps(budgets[-1])} (they differ between runs)")
+    short = sum(1 for cell in cells if cell.paper and any(run.steps_done < STEPS for run in cell.runs))
+    if short:
+        text += (f"; {short} cell(s) beside a published value trained fewer than the paper's {_steps(STEPS)} steps: "
+                 "not its protocol, not comparable with the published number")
+    return text + "."
 
 
 def _md_follow_ups(result: TableResult) -> list[str]:
