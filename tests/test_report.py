@@ -107,6 +107,8 @@ def test_paper_value_appears_beside_ours_for_a_known_cell(tmp_path: Path) -> Non
     (line,) = [line for line in lines if line["row"] == "intra" and line["task"] == "Hopper"]
     assert float(line["mean"]) == pytest.approx(10750 / 3)
     assert (line["n"], line["status"], line["paper_mean"], line["paper_std"]) == ("3", "ok", "3583.0", "86.0")
+    assert (line["steps_min"], line["steps_max"]) == ("10000", "10000")  # one evaluation each, at 10 000 steps
+    assert "% Steps per seed run: 10 000; 1 cell(s) beside a published value" in latex
 
 
 def test_the_beyond_table_prints_what_later_papers_published_under_ours_for_its_tasks(tmp_path: Path) -> None:

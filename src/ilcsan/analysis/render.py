@@ -115,6 +115,11 @@ def _steps(count: int) -> str:
     return f"{count:,}".replace(",", " ")
 
 
+def _step_range(cell: Cell) -> tuple[int | str, int | str]:
+    steps = [run.steps_done for run in cell.runs]
+    return (min(steps), max(steps)) if steps else ("", "")
+
+
 def budget_text(result: TableResult) -> str | None:
     """The steps the table's seed runs trained (one figure, or the range when cells differ), and a warning when a
     cell shown beside the paper's value trained fewer steps than the paper's protocol (:data:`STEPS`): such a
@@ -214,17 +219,20 @@ def render_latex(results: TableResult | Sequence[TableResult], skipped: Sequence
             cells = [_tex_cell(cell) for cell in row.cells]
             apr = _tex_apr(row, len(result.tasks))
             lines.append(" & ".join([latex_escape(row.label), *cells, apr]) + r" \\")
-        lines += [r"\bottomrule", r"\end{tabular}}", r"\end{table*}", ""]
+        lines += [r"\bottomrule", r"\end{tabular}}", r"\end{table*}"]
+        budget = budget_text(result)
+        lines += ([f"% {budget}"] if budget else []) + [""]
     lines += [f"% skipped {run.path}: {run.reason}".replace("\n", " ") for run in skipped]
     return "\n".join(lines) + "\n"
 
 
 CSV_COLUMNS: tuple[str, ...] = (
     "table", "row", "label", "task", "kind", "status", "n", "running", "mean", "std", "best",
-    "paper_mean", "paper_std",
+    "paper_mean", "paper_std", "steps_min", "steps_max",
 )
-"""Long format: one line per (row, task) cell (``kind`` = reward) and one per row for its APR
-(``kind`` = apr, ``task`` = APR, ``n`` = number of tasks averaged, ``mean`` = APR in percent)."""
+"""Long format: one line per (row, task) cell (``kind`` = reward; ``steps_min``/``steps_max``: the fewest and most
+steps its seed runs trained) and one per row for its APR (``kind`` = apr, ``task`` = APR, ``n`` = number of tasks
+averaged, ``mean`` = APR in percent)."""
 
 
 def render_csv(results: TableResult | Sequence[TableResult]) -> str:
@@ -242,11 +250,12 @@ def render_csv(results: TableResult | Sequence[TableResult]) -> str:
                     _csv_number(cell.mean), _csv_number(cell.std), int(cell.best),
                     _csv_number(cell.paper.mean if cell.paper else None),
                     _csv_number(cell.paper.std if cell.paper else None),
+                    *_step_range(cell),
                 ])
             status = "ok" if row.apr is not None else "missing"
             writer.writerow([
                 result.name or "", row.key, row.label, "APR", "apr", status, row.apr_tasks, "",
-                _csv_number(row.apr), "", int(row.best_apr), _csv_number(row.paper_apr), "",
+                _csv_number(row.apr), "", int(row.best_apr), _csv_number(row.paper_apr), "", "", "",
             ])
     return buffer.getvalue()
 
