@@ -123,6 +123,21 @@ def test_the_beyond_table_prints_what_later_papers_published_under_ours_for_its_
     assert "Published by" not in intra
 
 
+def test_the_beyond_rows_that_ran_the_papers_actors_show_its_table_perf_cells_but_not_its_apr(tmp_path: Path) -> None:
+    make_run(tmp_path, "Hopper", 0, "ILC-SAN", [3000.0] * 100, table="beyond", row="ilc-san")  # 1 000 000 steps
+    make_run(tmp_path, "Hopper", 0, "DAN", [3400.0] * 100, table="beyond", row="dan", preset="dan")
+    make_run(tmp_path, "Hopper", 0, "ILC-SAN + Proxy Target", [3100.0] * 100, table="beyond", row="ilc-san+proxy")
+    result = build_table(collect_runs(tmp_path), "beyond")
+    perf = build_table([], "perf")
+    assert result.cell("ilc-san", "Hopper").paper == perf.cell("ilc-san-pop-det", "Hopper").paper
+    assert result.cell("dan", "Hopper").paper == perf.cell("dan", "Hopper").paper
+    assert result.cell("ilc-san+proxy", "Hopper").paper is None  # the paper never ran Proxy Target
+    markdown = render_markdown(result)
+    ilc = next(line for line in markdown.splitlines() if line.startswith("| ILC-SAN |"))
+    assert ilc == "| ILC-SAN | 3000 ± 0 (n=1) · paper 3583 ± 86 | 88.24% |"  # APR 3000/3400, no published APR
+    assert "Steps per seed run: 1 000 000." in markdown
+
+
 def test_the_transcribed_follow_up_numbers_reproduce_their_printed_average_gains() -> None:
     """Each row's printed gain is the mean over tasks of cell / reference − 1 (Proxy Target's APG): recomputing it
     from the transcribed cells catches a mistyped cell."""

@@ -124,6 +124,7 @@ class _RowDraft:
     label: str
     paper: tuple[str, str] | None = None
     runnable: bool = True
+    paper_apr: bool = True  # False where ``paper`` is another table's row (its APR averages other tasks)
     runs: list[RunRecord] = field(default_factory=list)
     table: str | None = None
     actor: Mapping[str, Any] = field(default_factory=dict)
@@ -159,7 +160,8 @@ def _rows_by_configuration(rows: Sequence[RowSpec]) -> dict[str, str]:
 def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, match_untagged: bool,
                      reference: Sequence[RunRecord]) -> TableResult:
     builtin = spec.name in TABLES
-    groups = {row.slug: _RowDraft(row.slug, row.label, (spec.name, row.slug) if builtin else None, row.runnable)
+    groups = {row.slug: _RowDraft(row.slug, row.label, row.published or ((spec.name, row.slug) if builtin else None),
+                                  row.runnable, paper_apr=row.published is None)
               for row in spec.rows}
     by_label = {row.label: row.slug for row in spec.rows}
     by_configuration = _rows_by_configuration(spec.rows)
@@ -283,7 +285,8 @@ def _table_result(name: str | None, caption: str, tasks: tuple[str, ...], groups
         )
         apr, count = _apr(cells, dan)
         rows.append(RowResult(group.key, group.label, cells, apr, count,
-                              published_apr(*group.paper) if group.paper else None, group.runnable))
+                              published_apr(*group.paper) if group.paper and group.paper_apr else None,
+                              group.runnable))
     return TableResult(name, caption, tasks, _mark_best(rows, tasks), described)
 
 

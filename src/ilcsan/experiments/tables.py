@@ -59,6 +59,9 @@ class RowSpec:
     runnable: bool = True
     td3: Mapping[str, Any] = field(default_factory=dict, hash=False)
     """TD3 settings of this row (training methods such as ``target_actor``), over the grid's own."""
+    published: tuple[str, str] | None = None
+    """In a grid that is not a table of the paper: the paper's (table, row) that ran this same actor and method,
+    whose published cells a report shows beside this row's (its APR, over other tasks, is not shown)."""
 
     def actor(self) -> dict[str, Any]:
         """The actor switches of this row: ``{"preset": ..., **overrides}``."""
@@ -167,10 +170,10 @@ BEYOND = TableSpec(
     caption="Beyond the paper: ILC-SAN with the training methods that followed it, against DAN",
     tasks=("Hopper",),
     rows=(
-        _row("ilc-san", "ILC-SAN", "ilc-san"),
+        RowSpec("ilc-san", "ILC-SAN", "ilc-san", published=("perf", "ilc-san-pop-det")),
         RowSpec("ilc-san+proxy", "ILC-SAN + Proxy Target", "ilc-san", {}, True, {"target_actor": "proxy"}),
         RowSpec("ilc-san+noisy", "ILC-SAN + NoisySAN", "ilc-san", {}, True, {"exploration": "noisy"}),
-        _row("dan", "DAN", "dan"),
+        RowSpec("dan", "DAN", "dan", published=("perf", "dan")),
     ),
     seeds=5,
     steps=200_000,
