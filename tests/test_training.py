@@ -263,7 +263,7 @@ def test_checkpoints_are_due_after_the_minutes_given(tmp_path, monkeypatch):
         now[0] += 1.0
         assert trainer._checkpoint_due()
         assert trainer._clock.stop() == 120.0  # training time counted up to the checkpoint
-        trainer._clock.restart(checkpointed=True)
+        trainer._clock.restart()
         assert not trainer._checkpoint_due()
         trainer.config = dataclasses.replace(trainer.config, checkpoint_minutes=0.0)
         now[0] += 10_000.0

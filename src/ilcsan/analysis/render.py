@@ -82,8 +82,7 @@ def render_markdown(results: TableResult | Sequence[TableResult], skipped: Seque
         "episodes), as mean ± std over seeds (numpy std, ddof=0), n = number of seeds; bold = best of "
         "the column; `—` = no runs (missing). APR = mean over tasks of (cell / DAN cell), only over tasks "
         "where both exist. \"paper\" = the published value for the same table, row and task (in a grid of our "
-        "own, of the paper's table and row that ran the same actor and method; Table perf for beyond's ILC-SAN "
-        "and DAN).",
+        "own, of the paper's table and row that ran the same actor and method).",
         "",
     ]
     if skipped:

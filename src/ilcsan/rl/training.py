@@ -115,11 +115,11 @@ class Trainer:
                     self.wall_seconds += self._clock.stop()
                     speed = self._clock.speed(self.step)
                     self._after_evaluation(self.evaluate(), speed, losses)
-                    self._clock.restart(self.step, checkpointed=True)
+                    self._clock.restart(self.step)
                 elif self._checkpoint_due():
                     self.wall_seconds += self._clock.stop()
                     self._write_checkpoints()
-                    self._clock.restart(checkpointed=True)
+                    self._clock.restart()
                 self.callbacks.step(self)
         finally:
             self.close()
@@ -249,11 +249,10 @@ class TrainingClock:
     def speed(self, step: int) -> float:
         return (step - self.interval_start) / max(self.interval_seconds, 1e-9)
 
-    def restart(self, step: int | None = None, checkpointed: bool = False) -> None:
-        """Count training time again; with ``step``, a new interval (an evaluation) starts there."""
-        self.mark = time.perf_counter()
-        if checkpointed:
-            self.checkpointed = self.mark
+    def restart(self, step: int | None = None) -> None:
+        """Count training time again after a checkpoint (an evaluation writes one too); with ``step``, a new
+        interval (after an evaluation) starts there."""
+        self.mark = self.checkpointed = time.perf_counter()
         if step is not None:
             self.interval_seconds, self.interval_start = 0.0, step
 
