@@ -23,7 +23,6 @@ phase), and without evaluations. Run it on an otherwise idle machine:
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib.util
 import os
 import platform
@@ -37,6 +36,7 @@ import numpy as np
 import torch
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.experiments.estimate import cpu_field
 from ilcsan.rl.settings import flush_denormals
 from ilcsan.rl.training import Trainer
 
@@ -246,11 +246,7 @@ def median_call_us(function, calls: int, warmup: int = 200) -> float:
 
 def cpu_model() -> str:
     """The CPU's model name as /proc/cpuinfo gives it (or what platform knows)."""
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or platform.machine()
+    return cpu_field("model name") or platform.processor() or platform.machine()
 
 
 def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[str, float]:

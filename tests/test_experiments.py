@@ -386,11 +386,16 @@ def test_estimates_use_the_speed_measured_on_this_kind_of_cpu(monkeypatch, vendo
             f"NoisySAN {estimate.NOISY_STEP_COST:g}") in footer
 
 
-def test_the_cpu_vendor_is_read_from_this_machine():
-    from ilcsan.experiments.estimate import cpu_vendor
+def test_cpu_fields_are_read_as_proc_cpuinfo_writes_them(tmp_path):
+    from ilcsan.experiments.estimate import cpu_field
 
-    vendor = cpu_vendor()
-    assert vendor is None or vendor.isalnum()  # "GenuineIntel", "AuthenticAMD": the value alone, no ": "
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 9R14 96-Core: Rev B\n"
+                       "processor\t: 1\nvendor_id\t: GenuineIntel\n\n")
+    assert cpu_field("vendor_id", str(cpuinfo)) == "AuthenticAMD"  # the first CPU's, value alone
+    assert cpu_field("model name", str(cpuinfo)) == "AMD EPYC 9R14 96-Core: Rev B"  # a colon in the value kept
+    assert cpu_field("flags", str(cpuinfo)) is None
+    assert cpu_field("vendor_id", str(tmp_path / "missing")) is None
 
 
 @pytest.mark.parametrize("argv, fragments", [

@@ -35,16 +35,23 @@ EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
 
 
-def cpu_vendor() -> str | None:
-    """The CPU's vendor string (``GenuineIntel``, ``AuthenticAMD``) from /proc/cpuinfo; None where unreadable."""
+def cpu_field(name: str, path: str = "/proc/cpuinfo") -> str | None:
+    """The value of the first ``name`` line of /proc/cpuinfo (``vendor_id``, ``model name``); None where the file
+    is unreadable or has no such line."""
     try:
-        with open("/proc/cpuinfo", encoding="utf-8") as stream:
+        with open(path, encoding="utf-8") as stream:
             for line in stream:
-                if line.startswith("vendor_id"):
-                    return line.split(":", 1)[1].strip()
+                key, _, value = line.partition(":")
+                if key.strip() == name:
+                    return value.strip()
     except OSError:
         pass
     return None
+
+
+def cpu_vendor() -> str | None:
+    """The CPU's vendor string (``GenuineIntel``, ``AuthenticAMD``); None where unknown."""
+    return cpu_field("vendor_id")
 
 
 def steps_per_second_default() -> float:
