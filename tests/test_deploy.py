@@ -184,8 +184,8 @@ def test_runtime_modules_import_numpy_only():
                    if line.strip().startswith(("import ", "from "))]
         assert "torch" not in " ".join(imports), path.name
         external = {name for name in imports if not name.startswith(".")}
-        assert external <= {"__future__", "json", "math", "collections.abc", "dataclasses", "pathlib", "typing",
-                            "numpy"}, path.name
+        assert external <= {"__future__", "json", "math", "numbers", "collections.abc", "dataclasses", "pathlib",
+                            "typing", "numpy"}, path.name
         assert all(name in (".errors", "...errors") or name.count(".") == 1 for name in imports
                    if name.startswith(".")), path.name  # only siblings, and the package's UserError
 

@@ -480,6 +480,29 @@ def test_predict_returns_a_bounded_action_or_one_user_error(policy, observation)
     assert np.all(np.isfinite(action)) and np.all(np.abs(action) <= 2.0)
 
 
+@pytest.fixture(scope="module")
+def deployed_actor(policy):
+    from ilcsan.deploy import DeployedActor
+    from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
+
+    return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
+
+
+@hostile(examples=200)
+@given(observation=OBSERVATIONS)
+def test_the_deployed_runtime_refuses_exactly_what_predict_refuses(policy, deployed_actor, observation):
+    """One check of what a robot passes in, for the PyTorch policy and the numpy runtime alike (no string or
+    complex number slips through one of them)."""
+    outcomes = []
+    for call in (policy.predict, deployed_actor.act):
+        try:
+            outcomes.append(call(observation).shape)
+        except UserError as error:
+            assert "\n" not in str(error)
+            outcomes.append("refused")
+    assert outcomes[0] == outcomes[1], f"predict: {outcomes[0]}, deployed act: {outcomes[1]}"
+
+
 # ------------------------------------------------------------------------------------------------
 # Damaged files
 

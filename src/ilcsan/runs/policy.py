@@ -8,7 +8,6 @@ robot program makes.
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +17,7 @@ import numpy as np
 import torch
 
 from ..config import ActorConfig
-from ..deploy.runtime.host import normalize
+from ..deploy.runtime.host import HostSide
 from ..errors import UserError
 from ..files import safe_torch_load
 from ..snn.actor import build_actor
@@ -46,7 +45,7 @@ def resolve_policy_file(path: str | Path) -> Path:
 
 
 @dataclass
-class Policy:
+class Policy(HostSide):
     """A trained actor with its frozen observation normaliser; ``predict`` is the deployed call.
 
     ``predict`` runs the actor eagerly (≈ 1.3-2.1 ms per batch-1 action on a Hopper ILC-SAN actor, one thread);
@@ -85,37 +84,14 @@ class Policy:
         return self.forward is not self.actor
 
     @property
-    def state_dim(self) -> int:
-        return int(self.obs_mean.shape[0])
-
-    @property
-    def action_dim(self) -> int:
-        return int(self.action_scale.shape[0])
-
-    def normalize(self, observation: np.ndarray) -> np.ndarray:
-        return normalize(observation, self.obs_mean, self.obs_std, self.obs_clip)
+    def expects(self) -> str:
+        return f"{self.task} policy"
 
     def check_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
-        """Validate shape and values; returns a (B, N) float64 array and whether the input was single."""
+        """:meth:`HostSide.check_observation`, also for a torch tensor (on any device, with or without grad)."""
         if torch.is_tensor(observation):
             observation = observation.detach().cpu().numpy()
-        try:
-            raw = np.asarray(observation)
-            if raw.dtype.kind == "O" and all(isinstance(x, numbers.Real) for x in raw.flat):
-                raw = raw.astype(np.float64)  # Python numbers; an int beyond float64 raises OverflowError
-            if raw.dtype.kind not in "biuf":  # strings, bytes, complex, dates, objects: not sensor readings
-                raise TypeError(raw.dtype)
-            array = raw.astype(np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise UserError(f"observation must be real numbers of shape ({self.state_dim},) or "
-                            f"(B, {self.state_dim})") from None
-        single = array.ndim == 1
-        if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
-            raise UserError(f"observation has shape {array.shape}; this {self.task} policy expects "
-                            f"({self.state_dim},) or (B, {self.state_dim})")
-        if not np.all(np.isfinite(array)):
-            raise UserError("observation contains NaN or inf; check the sensor readings before acting")
-        return (array[None] if single else array), single
+        return super().check_observation(observation)
 
     @torch.no_grad()
     def predict(self, observation: Any) -> np.ndarray:

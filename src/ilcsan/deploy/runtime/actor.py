@@ -18,15 +18,14 @@ from .bundle_format import (
     read_array,
     read_bundle,
 )
-from .errors import UserError
-from .host import deterministic_spike_train, gaussian_stimulation, li_voltages, normalize, select_statistic, squash
+from .host import HostSide, deterministic_spike_train, gaussian_stimulation, li_voltages, select_statistic, squash
 from .neurons import CLIF, Dynamic
 from .pipeline import Workspace
 from .synapses import Synapses, steps_accumulator
 
 
 @dataclass
-class DeployedActor:
+class DeployedActor(HostSide):
     """A fully spiking actor loaded from a deploy bundle; ``act`` is the deployed call.
 
     ``last_sop`` / ``last_sop_by_layer`` count the accumulates of the last inference, ``total_sop``,
@@ -90,14 +89,6 @@ class DeployedActor:
 
     # -------------------------------------------------------------------------------- properties
     @property
-    def state_dim(self) -> int:
-        return int(self.obs_mean.shape[0])
-
-    @property
-    def action_dim(self) -> int:
-        return int(self.action_scale.shape[0])
-
-    @property
     def timesteps(self) -> int:
         return int(self.meta["T"])
 
@@ -109,18 +100,14 @@ class DeployedActor:
     # ------------------------------------------------------------------------------------- acting
     def act(self, observation: Any) -> np.ndarray:
         """Deterministic action for one observation (N,) → (M,), or a batch (B, N) → (B, M), float32."""
-        batch, single = self._checked_observation(observation)
+        batch, single = self.check_observation(observation)
         if single:
             return self._act_one(batch[0])
         return np.stack([self._act_one(row) for row in batch])
 
-    def normalize(self, observation: np.ndarray) -> np.ndarray:
-        """Host: the frozen normaliser clip((s − mean)/std, ±clip) → float32 (as Policy.normalize)."""
-        return normalize(observation, self.obs_mean, self.obs_std, self.obs_clip)
-
     def spike_trains(self, observation: Any) -> list[np.ndarray]:
         """Encoder output and every layer's spikes (T, D) for one raw observation (copies, for analysis)."""
-        batch, _ = self._checked_observation(observation)
+        batch, _ = self.check_observation(observation)
         self._forward(self.normalize(batch[0]))
         return [train.copy() for train in self.workspace.trains]
 
@@ -145,19 +132,6 @@ class DeployedActor:
             self.total_sop_by_layer[name] = self.total_sop_by_layer.get(name, 0) + count
         self.total_sop += sum(counts.values())
         self.inferences += 1
-
-    def _checked_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
-        try:
-            array = np.asarray(observation, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise UserError(f"observation must be numbers of shape ({self.state_dim},) or "
-                            f"(B, {self.state_dim})") from None
-        if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
-            raise UserError(f"observation has shape {array.shape}; this actor expects ({self.state_dim},) "
-                            f"or (B, {self.state_dim})")
-        if not np.isfinite(array).all():
-            raise UserError("observation contains NaN or inf; check the sensor readings before acting")
-        return (array[None] if array.ndim == 1 else array), array.ndim == 1
 
 
 def _neuron(meta: Mapping[str, Any]) -> CLIF | Dynamic:

@@ -8,9 +8,62 @@ operation for operation, in float32.
 
 from __future__ import annotations
 
+import numbers
+from typing import Any
+
 import numpy as np
 
 from .errors import UserError
+
+
+class HostSide:
+    """What every deployable actor does on the host around its network (:class:`~.actor.DeployedActor`,
+    ``ilcsan.Policy``): check the observations a robot passes in, normalise them with the frozen statistics
+    ``obs_mean``/``obs_std``/``obs_clip`` and scale actions with ``action_scale``/``action_offset`` — fields the
+    subclass declares. ``expects`` names the actor in shape errors."""
+
+    obs_mean: np.ndarray
+    obs_std: np.ndarray
+    obs_clip: float
+    action_scale: np.ndarray
+    action_offset: np.ndarray
+
+    @property
+    def expects(self) -> str:
+        return "actor"
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.obs_mean.shape[0])
+
+    @property
+    def action_dim(self) -> int:
+        return int(self.action_scale.shape[0])
+
+    def normalize(self, observation: np.ndarray) -> np.ndarray:
+        """The frozen normaliser clip((s − mean)/std, ±clip) → float32 (:func:`normalize`)."""
+        return normalize(observation, self.obs_mean, self.obs_std, self.obs_clip)
+
+    def check_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """Real, finite numbers of shape (N,) or (B, N) → a (B, N) float64 array and whether one was given alone;
+        anything else (strings, complex numbers, objects, another shape, NaN or inf) is a :class:`UserError`."""
+        try:
+            raw = np.asarray(observation)
+            if raw.dtype.kind == "O" and all(isinstance(x, numbers.Real) for x in raw.flat):
+                raw = raw.astype(np.float64)  # Python numbers; an int beyond float64 raises OverflowError
+            if raw.dtype.kind not in "biuf":  # strings, bytes, complex, dates, objects: not sensor readings
+                raise TypeError(raw.dtype)
+            array = raw.astype(np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise UserError(f"observation must be real numbers of shape ({self.state_dim},) or "
+                            f"(B, {self.state_dim})") from None
+        single = array.ndim == 1
+        if array.ndim not in (1, 2) or array.shape[-1] != self.state_dim or array.size == 0:
+            raise UserError(f"observation has shape {array.shape}; this {self.expects} expects "
+                            f"({self.state_dim},) or (B, {self.state_dim})")
+        if not np.all(np.isfinite(array)):
+            raise UserError("observation contains NaN or inf; check the sensor readings before acting")
+        return (array[None] if single else array), single
 
 
 def normalize(observation: np.ndarray, mean: np.ndarray, std: np.ndarray, clip: float) -> np.ndarray:
