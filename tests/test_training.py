@@ -15,7 +15,7 @@ from ilcsan.errors import UserError
 from ilcsan.rl import training
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import Trainer, train
-from ilcsan.snn.matmul import matmul_path, use_matmul_path
+from ilcsan.snn.matmul import matmul_path, onednn_available, use_matmul_path
 
 TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
 
@@ -84,11 +84,24 @@ def test_first_critic_equals_the_first_twin_of_every_seed():
     torch.testing.assert_close(critic.first(state, action), both[:, 0])
 
 
-@pytest.mark.parametrize("preset", ["ilc-san", "dan"])
-def test_compiled_update_program_equals_the_eager_update(preset):
+@pytest.fixture
+def _restore_matmul_settings():
+    before, path, threads = torch.get_float32_matmul_precision(), matmul_path(), torch.get_num_threads()
+    yield
+    torch.set_float32_matmul_precision(before)
+    use_matmul_path(path)
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize(("preset", "path"), [("ilc-san", "aten"), ("dan", "aten"), ("ilc-san", "onednn")])
+def test_compiled_update_program_equals_the_eager_update(preset, path, _restore_matmul_settings):
     """The whole update as one compiled program (fullgraph=True: any graph break fails) leaves the same actor,
-    critic, targets and Adam states as the eager update, over 12 updates (6 delayed), for 2 stacked seeds. (With
-    Proxy Target: tests/test_proxy_target.py.)"""
+    critic, targets and Adam states as the eager update, over 12 updates (6 delayed), for 2 stacked seeds, on
+    each float32 matmul path (eager, the paths agree: tests/test_matmul.py). (With Proxy Target:
+    tests/test_proxy_target.py.)"""
+    if path == "onednn" and not onednn_available():
+        pytest.skip("this torch has no oneDNN")
+    use_matmul_path(path)
     small = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
     config = actor_config(preset, **small[preset])
     td3 = TD3Config(critic_hidden=(16, 16))
@@ -106,15 +119,6 @@ def test_compiled_update_program_equals_the_eager_update(preset):
                 torch.testing.assert_close(before[key], after[key], atol=1e-6, rtol=1e-4)
     state = rng.normal(size=(2, 3)).astype(np.float32)
     assert np.allclose(eager.act(state), compiled.act(state), atol=1e-5)
-
-
-@pytest.fixture
-def _restore_matmul_settings():
-    before, path, threads = torch.get_float32_matmul_precision(), matmul_path(), torch.get_num_threads()
-    yield
-    torch.set_float32_matmul_precision(before)
-    use_matmul_path(path)
-    torch.set_num_threads(threads)
 
 
 def test_matmul_option_sets_the_path_for_the_run_and_close_gives_the_process_its_settings_back(

@@ -13,7 +13,7 @@ TD3's target policy smoothing ε. The proxy has no soft-updated copy of its own,
 soft-updated copy is not kept. Training only: the deployed actor is the spiking one.
 
 Compiled (``compile=True``), the K regression steps run as one program (:class:`~ilcsan.rl.update_program.
-DirectProgram`): the loss as a pure function of the proxy's parameters (``torch.func``), Adam in place on the
+DirectProgram`): the loss as a pure function of the proxy's parameters (``value_and_grads``), Adam in place on the
 optimizer's own state, as the update program does.
 """
 
@@ -22,11 +22,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import torch
-from torch.func import grad_and_value
 
 from ..config import PROXY_HIDDEN, TD3Config, actor_config
 from ..snn.actor import DeepActor, build_actor
-from .update_program import DirectProgram, adam_, adam_state, as_function, module_tensors
+from .update_program import DirectProgram, adam_, adam_state, as_function, module_tensors, value_and_grads
 
 PROXY_SALT = 4
 """Offset of the proxy's initial weights from a seed (the actor and critic use others)."""
@@ -63,7 +62,7 @@ class ProxyTarget:
         """The K regression steps as a pure function of the proxy's parameters and Adam state (compiled whole)."""
         total = torch.zeros(())
         for step_states, goal in zip(states, goals, strict=True):
-            grads, loss = grad_and_value(self.loss, argnums=2)(step_states, goal, tensors["proxy"])
+            grads, loss = value_and_grads(self.loss, step_states, goal, tensors["proxy"], wrt=(2,))
             adam_(tensors["proxy"], grads, *tensors["adam"], lr=self.lr)
             total = total + loss
         return total / len(states)

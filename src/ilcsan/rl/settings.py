@@ -12,7 +12,6 @@ import torch
 from ..config import PROXY_HIDDEN, SPIKING_ENCODERS, RunConfig, check_settings
 from ..errors import UserError
 from ..snn.matmul import (
-    COMPILABLE_PATHS,
     Product,
     fastest_float32_path,
     gaining_products,
@@ -106,9 +105,9 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int) -> list[Pro
 
 def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> dict:
     """Set this process's matmul path for the run (:mod:`ilcsan.snn.matmul`) and return what was chosen, for
-    config.json and the start-up line. float32: the faster float32 path on the run's own products, measured now
-    (among the compilable paths when the run is compiled). bf16: bfloat16 for the products it computes faster,
-    measured now as the run will compute them (casts fused when compiled), float32 (``aten``) for the others."""
+    config.json and the start-up line. float32: the faster float32 path on the run's own products, measured now.
+    bf16: bfloat16 for the products it computes faster, measured now as the run will compute them (casts fused
+    when compiled), float32 (``aten``) for the others."""
     if torch.device(config.device).type != "cpu":
         use_matmul_path("aten")
         return {"path": "aten", "gflops": {}}
@@ -122,7 +121,7 @@ def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> di
                 "bf16_products": sorted([list(a), list(w)] for a, w in gaining), "products": len(times),
                 "bf16_speedup": round(float32_seconds / bf16_seconds, 2) if gaining else None}
     speeds = measure_paths(products, seconds=0.05)
-    path = fastest_float32_path(speeds, compiled)
+    path = fastest_float32_path(speeds)
     use_matmul_path(path)
     return {"path": path, "compiled": compiled, "gflops": {name: round(value, 1) for name, value in speeds.items()}}
 
@@ -136,8 +135,7 @@ def describe_matmul_choice(choice: dict) -> str:
                 f"on the {total - chosen} that bfloat16 does not speed up")
     if not choice["gflops"]:
         return f"matmul: {choice['path']}"
-    speeds = ", ".join(f"{name} {value:.0f}" + (" (eager runs only)" if choice["compiled"] and name not in
-                                                  COMPILABLE_PATHS else "") for name, value in choice["gflops"].items())
+    speeds = ", ".join(f"{name} {value:.0f}" for name, value in choice["gflops"].items())
     return f"matmul: {choice['path']} (float32 GFLOP/s on this run's products: {speeds})"
 
 

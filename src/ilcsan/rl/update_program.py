@@ -2,9 +2,10 @@
 
 The eager update (:meth:`ilcsan.rl.td3.TD3Agent.update`) is hundreds of small PyTorch calls, each paying
 Python and dispatcher cost. Here the same update is written as a function of plain tensors — the networks
-run through ``torch.func.functional_call``, the gradients come from ``torch.func.grad_and_value`` and Adam
-and the Polyak averages are a few lines of tensor arithmetic — and ``torch.compile(fullgraph=True)`` turns
-each of its two variants into one program with no Python between operations:
+run through ``torch.func.functional_call``, the gradients come from ``torch.autograd.grad`` on fresh leaves
+(:func:`value_and_grads`), Adam and the Polyak averages are a few lines of tensor arithmetic — and
+``torch.compile(fullgraph=True)`` turns each of its two variants into one program with no Python between
+operations:
 
 * ``critic``: y = r + γ(1 − d) min_j Q'_j(s', clip(π'(s') + clip(σ̃ε, −c, c))), one critic Adam step;
 * ``critic+actor`` (every ``policy_delay``-th update): the same, then the actor's Adam step on −Q_1(s, π(s))
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
-from torch.func import functional_call, grad_and_value
+from torch.func import functional_call
 
 if TYPE_CHECKING:
     from .td3 import TD3Agent
@@ -75,6 +76,30 @@ def adam_(params: Sequence[torch.Tensor], grads: Sequence[torch.Tensor], average
         average.lerp_(grad, 1.0 - beta1)
         square.mul_(beta2).addcmul_(grad, grad, value=1.0 - beta2)
         param.sub_(step_size * average / (square.sqrt() / root_correction2 + ADAM_EPS))
+
+
+def value_and_grads(loss: Callable[..., torch.Tensor], *args, wrt: tuple[int, ...] = (0,)):
+    """``torch.func.grad_and_value(loss, argnums=wrt)(*args)`` for arguments ``wrt`` that are lists of tensors:
+    (the gradients, one list per argument in ``wrt``, or the one list; the loss, detached).
+
+    Written with ``torch.autograd.grad`` on detached copies made leaves, which dynamo traces into one graph when
+    ``torch._dynamo.config.trace_autograd_ops`` is on (:class:`DirectProgram` turns it on while it traces).
+    ``grad_and_value`` also compiles, but with torch 2.13 an autograd Function that runs an opaque operator (the
+    oneDNN products, :func:`ilcsan.snn.matmul.onednn_matmul_nt`) then gets a zero gradient for a weight whose
+    layer input needs none (tested in ``tests/test_matmul.py``); traced this way its gradients are exact, so compiled
+    runs can use every float32 path. A tensor the loss does not reach gets a zero gradient, as with ``torch.func``."""
+    args = list(args)
+    with torch.enable_grad():
+        for index in wrt:
+            args[index] = [tensor.detach().requires_grad_() for tensor in args[index]]
+        value = loss(*args)
+        leaves = [tensor for index in wrt for tensor in args[index]]
+        flat = list(torch.autograd.grad(value, leaves, materialize_grads=True)) if leaves else []
+    groups = []
+    for index in wrt:
+        groups.append(flat[:len(args[index])])
+        flat = flat[len(args[index]):]
+    return (tuple(groups) if len(wrt) > 1 else groups[0]), value.detach()
 
 
 def as_function(module: nn.Module, tensors: Sequence[torch.Tensor], names: Sequence[str]) -> Callable:
@@ -161,7 +186,8 @@ class DirectProgram:
     def __call__(self, *args):
         leaves = tensor_leaves(args)
         if self.slots is None:
-            result = self.traced(*args)
+            with torch._dynamo.config.patch(trace_autograd_ops=True):  # value_and_grads inside the graph
+                result = self.traced(*args)
             if self.example_inputs is not None:
                 self._bind(leaves, result)
             return result
@@ -228,15 +254,15 @@ class UpdateProgram:
                 batch["next_obs"], noise, batch["reward"], batch["terminal"],
                 as_function(agent.actor_target, tensors["actor_target"], self.target_actor_names),
                 as_function(agent.critic_target, tensors["critic_target"], self.critic_names))
-        grads, loss = grad_and_value(self._critic_loss)(tensors["critic"], batch, target)
+        grads, loss = value_and_grads(self._critic_loss, tensors["critic"], batch, target)
         adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=agent.td3.critic_lr)
         return loss
 
     def _delayed_step(self, tensors: dict, batch: dict, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         critic_loss = self._critic_step(tensors, batch, noise)
         lr = self.agent.config.learning_rate
-        (grads, exploration_grads), actor_loss = grad_and_value(self._actor_loss, argnums=(0, 1))(
-            tensors["actor"], tensors["exploration"], tensors["critic"], batch)
+        (grads, exploration_grads), actor_loss = value_and_grads(
+            self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], batch, wrt=(0, 1))
         adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=lr)
         if tensors["exploration"]:  # NoisySAN's σ_d, with the actor's learning rate
             adam_(tensors["exploration"], exploration_grads, *tensors["exploration_adam"], lr=lr)
@@ -269,7 +295,7 @@ class UpdateProgram:
         """One update in place; returns (critic loss, actor loss or None) as 0-dim tensors."""
         tensors = self.tensors()
         batch = {name: value.contiguous() for name, value in batch.items()}  # the layout the program was built for
-        with torch.no_grad():  # grad_and_value makes its own gradients; nothing outside is recorded
+        with torch.no_grad():  # value_and_grads makes its own gradients; nothing outside is recorded
             if delayed:
                 critic_loss, actor_loss = self.delayed_step(tensors, batch, noise)
                 return critic_loss, actor_loss

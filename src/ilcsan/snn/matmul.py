@@ -16,8 +16,8 @@ Every synaptic layer, critic layer and their gradients is one batched product ``
             gain (``use_matmul_path("bf16", products)``; :func:`product_path`).
 
 :func:`measure_paths` times the float32 paths on a run's own shapes (forward and both backward products of
-every layer) and :func:`fastest_float32_path` picks the quicker; the two agree to float32 rounding (tested).
-A compiled update program runs on :data:`COMPILABLE_PATHS` only. The path is a process setting
+every layer) and :func:`fastest_float32_path` picks the quicker; the two agree to float32 rounding (tested), eager
+and inside a compiled update program. The path is a process setting
 (:func:`use_matmul_path`), read when a program is compiled, so it is set before an agent is built, like
 torch's own matmul precision.
 """
@@ -31,11 +31,6 @@ import torch
 
 MATMUL_PATHS = ("aten", "onednn", "bf16")
 FLOAT32_PATHS = ("aten", "onednn")
-COMPILABLE_PATHS = ("aten", "bf16")
-"""The paths a compiled update program may use. torch 2.13 compiles the oneDNN operator into the update program,
-but the program's gradient of a first layer's weight comes out as zero (tested: ``tests/test_matmul.py``), so
-compiled runs keep to these and oneDNN serves eager runs only."""
-
 Product = tuple[tuple[int, ...], tuple[int, ...]]
 """The shapes (a, w) of a product ``a @ wᵀ``: ((K, R, in), (K, out, in))."""
 
@@ -184,9 +179,7 @@ def measure_paths(products: Sequence[Product], paths: Sequence[str] = FLOAT32_PA
     return {path: flops / elapsed / 1e9 for path, elapsed in best.items()}
 
 
-def fastest_float32_path(speeds: dict[str, float], compiled: bool = False) -> str:
-    """The float32 path with the highest GFLOP/s in ``speeds`` (``aten`` on a tie or when alone), among the
-    :data:`COMPILABLE_PATHS` when the run is compiled."""
-    allowed = [path for path in FLOAT32_PATHS if path in COMPILABLE_PATHS or not compiled]
-    candidates = {path: speed for path, speed in speeds.items() if path in allowed}
+def fastest_float32_path(speeds: dict[str, float]) -> str:
+    """The float32 path with the highest GFLOP/s in ``speeds`` (``aten`` on a tie or when alone)."""
+    candidates = {path: speed for path, speed in speeds.items() if path in FLOAT32_PATHS}
     return max(candidates, key=lambda path: (candidates[path], path == "aten"), default="aten")
