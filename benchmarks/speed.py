@@ -10,7 +10,8 @@ What it measures, on this machine, in this order:
      to zero as our runs do (``ilcsan.rl.settings.flush_denormals``). Each figure is also given as a ratio to the
      reference engine and to both SB3 rows, and as a fraction of the step's matmul-only floor: its recorded matrix
      products replayed back to back on the fastest float32 path (bf16 rows: each product as a bf16 run computes it,
-     in bfloat16 with the casts excluded where that is faster, else in float32);
+     in bfloat16 with the casts excluded where that is faster, else in float32); and the ceiling of any float32
+     engine: the step's matmul FLOPs at the CPU's float32 GEMM peak, nothing else costing;
   3. K seeds trained together in one process against K times the floor of one;
   4. batch-1 action latency: the training loop's compiled acting pass and ``Policy.predict``, eager and compiled.
 
@@ -43,20 +44,23 @@ from ilcsan.rl.training import Trainer
 TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8), "HalfCheetah": (17, 6)}
 
 
-def gemm_peak(threads: int, size: int = 2048, seconds: float = 2.0) -> float:
-    """GFLOP/s of a float32 square matmul with ``threads`` threads."""
+def gemm_peak(threads: int, size: int = 2048, windows: int = 8, seconds: float = 0.3) -> float:
+    """GFLOP/s of a float32 square matmul with ``threads`` threads: the best of ``windows`` timed windows of about
+    ``seconds`` each, so that a slow phase of a shared machine does not lower the ceiling it stands for."""
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     a, b = torch.randn(size, size), torch.randn(size, size)
     for _ in range(3):
         a @ b
-    count, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        a @ b
-        count += 1
-    elapsed = time.perf_counter() - start
+    best = 0.0
+    for _ in range(windows):
+        count, start = 0, time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            a @ b
+            count += 1
+        best = max(best, 2 * size**3 * count / (time.perf_counter() - start) / 1e9)
     torch.set_num_threads(previous)
-    return 2 * size**3 * count / elapsed / 1e9
+    return best
 
 
 def actor_forward_flops(preset: str, state_dim: int, action_dim: int, batch: int) -> float:
@@ -288,8 +292,16 @@ ROWS = (("ILC-SAN, reference engine (Algorithm 1, eager)", "ilc-san", "reference
 """(label, preset, engine, compiled, matmul) of each measured configuration."""
 
 
-def task_table(task: str, threads: int, steps: int, warmup: int, emit) -> dict[str, float]:
-    """One task's table for ``threads`` threads; returns each row's steps/s by label."""
+def peak_bound(task: str, preset: str, peak_gflops: float) -> float:
+    """Steps/s if every matrix product of a step ran at the CPU's float32 GEMM peak (:func:`gemm_peak`) and nothing
+    else cost anything: the ceiling of any float32 engine computing these products, whatever its matmul path."""
+    state_dim, action_dim = TASK_SIZES[task]
+    return peak_gflops * 1e9 / td3_step_flops(preset, state_dim, action_dim, TD3Config())
+
+
+def task_table(task: str, threads: int, steps: int, warmup: int, emit, peak_gflops: float) -> dict[str, float]:
+    """One task's table for ``threads`` threads (``peak_gflops``: the float32 GEMM peak with as many); returns
+    each row's steps/s by label."""
     floors = {preset: best_float32_floor(task, preset, (0,), threads) for preset in ("ilc-san", "dan")}
     bf16_floor = matmul_floor(task, "ilc-san", (0,), threads, "bf16")
     speeds = {label: training_speed(task, preset, engine, (0,), threads, steps, warmup, compiled, matmul)
@@ -299,7 +311,9 @@ def task_table(task: str, threads: int, steps: int, warmup: int, emit) -> dict[s
     reference = speeds[ROWS[0][0]]
     emit(f"**{task}, {threads} thread{'s' if threads > 1 else ''}** — float32 matmul-only floor: ILC-SAN "
          f"{floors['ilc-san'][0]:.0f} steps/s ({floors['ilc-san'][1]}), DAN {floors['dan'][0]:.0f} "
-         f"({floors['dan'][1]}); ILC-SAN bf16 floor {bf16_floor:.0f}.")
+         f"({floors['dan'][1]}); ILC-SAN bf16 floor {bf16_floor:.0f}. Every product at the float32 GEMM peak "
+         f"({peak_gflops:.0f} GFLOP/s), nothing else costing: ILC-SAN {peak_bound(task, 'ilc-san', peak_gflops):.0f} "
+         f"steps/s, DAN {peak_bound(task, 'dan', peak_gflops):.0f}.")
     emit()
     emit("| configuration | steps/s | × reference engine | × SB3 | × SB3 flushing denormals | % of its floor |")
     emit("|---|---|---|---|---|---|")
@@ -346,13 +360,15 @@ def main() -> None:
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     flush_denormals()  # before any multi-threaded work, so that the threads torch starts flush them as a run's do
     paths = path_speeds("Hopper", "ilc-san")
+    thread_counts = [int(value) for value in args.threads.split(",")]
+    peaks = {threads: gemm_peak(threads) for threads in sorted({1, *thread_counts})}
     emit(f"Machine: {cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; float32 GEMM peak "
-         f"{gemm_peak(1):.0f} GFLOP/s (1 thread, 2048²). Matmul paths on one ILC-SAN Hopper update's own products "
+         f"{peaks[1]:.0f} GFLOP/s (1 thread, 2048²). Matmul paths on one ILC-SAN Hopper update's own products "
          "(1 thread, GFLOP/s): " + ", ".join(f"{name} {value:.0f}" for name, value in paths.items()) + ".")
     emit()
     for task in args.tasks.split(","):
-        for threads in (int(value) for value in args.threads.split(",")):
-            task_table(task, threads, args.steps, args.warmup, emit)
+        for threads in thread_counts:
+            task_table(task, threads, args.steps, args.warmup, emit, peaks[threads])
     k = args.seeds
     together = k * training_speed("Hopper", "ilc-san", "fast", tuple(range(k)), 1, args.steps // 2, args.warmup)
     floor = k * best_float32_floor("Hopper", "ilc-san", tuple(range(k)), 1)[0]
