@@ -14,9 +14,10 @@ MEASURED_STEPS_PER_SECOND = {"AuthenticAMD": 130.0, "GenuineIntel": 180.0}
 """Environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations
 included, on the two kinds of machine this project runs on, by the CPU's vendor: the speed :func:`estimate_hours`
 and ``reproduce --list`` assume unless ``ILCSAN_STEPS_PER_SECOND`` gives the user's own measurement.
-``benchmarks/RESULTS.md``, compiled update program, float32: a 2-core AMD EPYC (Zen 4; 2026-11-30) ran 133 training
-steps/s; a 2-core Intel Xeon (AMX; 2026-12-02, ``benchmarks/ratios.py``) 183-200, median 188, and the protocol's
-evaluations (10 episodes in lockstep every 10 000 steps) add ≈ 4 % (a timed 1 000 000-step run), so 180. Another
+``benchmarks/RESULTS.md``, compiled update program, float32, training steps/s: a 2-core AMD EPYC (Zen 4) 133
+(2026-11-30) and 114-147 over nine measurements, median 138 (2026-12-02), less the evaluations, so 130; a 2-core
+Intel Xeon (AMX; 2026-12-02, ``benchmarks/ratios.py``) 183-200, median 188, and the protocol's evaluations (10
+episodes in lockstep every 10 000 steps) add ≈ 4 % (a timed 1 000 000-step run), so 180. Another
 vendor gets the slower figure."""
 
 DAN_STEP_COST = 0.6
