@@ -51,8 +51,9 @@ class _EnsembleAffine(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_output: torch.Tensor):  # noqa: D102
-        # Every gradient is computed, needed or not: under torch.compile of torch.func.grad_and_value (torch 2.13)
-        # ctx.needs_input_grad reports wrong flags, and skipping on them silently dropped gradients (tested).
+        # Every gradient is computed, needed or not: traced by torch.compile through torch.func.grad_and_value
+        # (torch 2.13), ctx.needs_input_grad reported wrong flags and skipping on them silently dropped gradients;
+        # the update program's torch.autograd.grad tracing (update_program.value_and_grads) was not checked for it.
         flat, weight = ctx.saved_tensors
         grad_bias = grad_output.sum(dim=1) if ctx.has_bias else None
         grad_input = ensemble_matmul(grad_output, weight.transpose(1, 2))  # g W
