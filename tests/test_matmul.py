@@ -100,8 +100,10 @@ def test_first_layer_weight_gradient_on_onednn_equals_mkls(compiled, restore_pat
     reference, _ = value_and_grads(loss, params)
     use_matmul_path("onednn")
     with torch.no_grad():
-        program = DirectProgram(lambda tensors: value_and_grads(loss, tensors)) if compiled else None
-        grads, _ = program(params) if compiled else value_and_grads(loss, params)
+        def gradients(tensors):
+            return value_and_grads(loss, tensors)
+
+        grads, _ = (DirectProgram(gradients) if compiled else gradients)(params)
     for ours, theirs in zip(grads, reference, strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-6)
     assert torch.count_nonzero(grads[0]) > 0
