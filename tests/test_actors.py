@@ -129,6 +129,7 @@ SWITCHES = [
     *[dict(encoder=e) for e in ["pop-det", "pop", "layer", "two-neuron"]],
     *[dict(hidden_layers=n, hidden_width=16) for n in (1, 3, 4)],
     dict(neuron="dynamic"),
+    dict(intra_timing="authors"), dict(intra_timing="authors", intra="self+bias", neuron="dynamic"),
 ]
 
 
@@ -140,11 +141,13 @@ def test_fast_engine_equals_reference_engine(switches):
         switches.setdefault("hidden", (24, 16))
     actor = make(actor_config(preset, **switches), state_dim=4, action_dim=3, seeds=(0, 7))
     state = torch.randn(2, 32, 4, generator=torch.Generator().manual_seed(1)) * 1.5
-    fast, reference = actor.run(state, "fast"), actor.run(state, "reference")
+    fast, reference = actor.run(state, "fast", membranes=True), actor.run(state, "reference", membranes=True)
     assert torch.allclose(fast.action, reference.action, atol=1e-5)
+    assert torch.allclose(fast.readout, reference.readout, atol=1e-5)
     if fast.output_spikes is not None:
         assert fast.output_spikes.mean() > 0.01, "the case should make neurons spike"
         assert torch.equal(fast.output_spikes, reference.output_spikes)
+        assert torch.allclose(fast.membranes, reference.membranes, atol=1e-5)
     grads = []
     for engine in ("fast", "reference"):
         actor.zero_grad()

@@ -38,6 +38,9 @@ FULLY_SPIKING = [
     ("ilc-san", {"population_in": 5, "population_out": 7, "timesteps": 8}),
     ("ilc-san", {"timesteps": 2}),
     ("popsan", {"decoder": "last"}),  # PopSAN's backbone with the membrane-voltage decoder
+    ("ilc-san", {"intra_timing": "authors"}),  # b_intra from t = 1, as the authors' code
+    ("ilc-san", {"intra_timing": "authors", "intra": "self+bias", "timesteps": 2}),
+    ("ilc-san", {"intra_timing": "authors", "intra": "self"}),  # no bias: the same actor as the paper's timing
 ]
 
 

@@ -68,6 +68,7 @@ ROUND_TRIPS = [
     {"decoder": "max", "alpha_v_li": 0.5}, {"decoder": "mean", "alpha_v_li": 0.75}, {"hidden": (48,)},
     {"hidden": (40, 32, 24)}, {"timesteps": 8, "population_out": 7},
     {"encoder": "pop"}, {"encoder": "layer", "intra": "self+bias"}, {"decoder": "fr", "intra": "none"},
+    {"intra_timing": "authors"}, {"intra_timing": "authors", "intra": "bias", "timesteps": 2},
 ]
 
 

@@ -28,13 +28,16 @@ def plain_run(workspace: Workspace) -> None:
     workspace._run_any_neuron()
 
 
+@pytest.mark.parametrize("timing", ["paper", "authors"])
 @pytest.mark.parametrize("variant", [v for v in INTRA_VARIANTS if v != "none"])
-def test_folded_intra_gives_the_unfolded_spikes(variant):
-    actor = runtime(random_policy(intra=variant, hidden=(40, 24)))
+def test_folded_intra_gives_the_unfolded_spikes(variant, timing):
+    policy = random_policy(intra=variant, hidden=(40, 24), intra_timing=timing)
+    actor = runtime(policy)
     folded = actor.workspace
-    unfolded = Workspace(actor.timesteps, actor.layers, actor.neuron, actor.intra, fold_intra=False)
+    unfolded = Workspace(actor.timesteps, actor.layers, actor.neuron, actor.intra, fold_intra=False,
+                         intra_bias_at_first_step=timing == "authors")
     assert folded.add_intra is None and unfolded.add_intra is not None
-    for observation in observations(random_policy(intra=variant, hidden=(40, 24)), 20):
+    for observation in observations(policy, 20):
         actor.spike_trains(observation)
         unfolded.encoded[...] = folded.encoded
         plain_run(unfolded)

@@ -85,6 +85,13 @@ INTRA_MASKS: dict[str, IntraMask] = {
 }
 """Every intra-layer variant as a mask on one mechanism; ``none`` keeps nothing (no intra-layer module)."""
 INTRA_VARIANTS: tuple[str, ...] = tuple(INTRA_MASKS)
+INTRA_TIMING_SOURCES: dict[str, str] = {
+    "paper": "Algorithm 1: I_t = W_intra S_{t-1} + b_intra from t = 2 on, nothing at t = 1",
+    "authors": "the authors' released code (popsan.py): W_intra S_{t-1} + b_intra at every t = 1..T, so b_intra "
+               "also arrives at t = 1 (S_0 = 0)",
+}
+"""When the intra-layer current starts (``--intra-timing``), each with where it comes from."""
+INTRA_TIMINGS: tuple[str, ...] = tuple(INTRA_TIMING_SOURCES)
 
 
 # ------------------------------------------------------------------ settings described once
@@ -180,6 +187,9 @@ class ActorConfig:
         Switch("hidden-width", "neurons per hidden layer", lambda widths: widths[0])))
     intra: str = setting("intra", "intra-layer connections kept (Eq. (10)): all, one part, or none",
                          choices=INTRA_VARIANTS)
+    intra_timing: str = setting("paper", "when the intra-layer current starts: paper (Algorithm 1, from t = 2) or "
+                                         "authors (their released code: b_intra also at t = 1)",
+                                choices=INTRA_TIMINGS)
     decoder: str = setting("last", "decoder statistic: the LI membrane voltage's last, max or mean, or the firing "
                                    "rate (fr)", choices=DECODERS)
     alpha_v_li: float = setting(1.0, "voltage decay α_V^LI of the decoder's LI neuron", bounds="decay")

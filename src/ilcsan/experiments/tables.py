@@ -27,11 +27,20 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.paper import FIRST_FOUR, PAPER_TASKS
-from ..config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES, RunConfig, TD3Config, check_settings
+from ..config import (
+    DECODERS,
+    ENCODERS,
+    INTRA_TIMINGS,
+    INTRA_VARIANTS,
+    PRESET_NAMES,
+    RunConfig,
+    TD3Config,
+    check_settings,
+)
 from ..errors import UserError
 
 OVERRIDE_KEYS: tuple[str, ...] = (
-    "encoder", "decoder", "alpha_v_li", "intra", "hidden_layers", "hidden_width",
+    "encoder", "decoder", "alpha_v_li", "intra", "intra_timing", "hidden_layers", "hidden_width",
 )
 DAN_OVERRIDE_KEYS: tuple[str, ...] = ("hidden_layers", "hidden_width")
 """The only switches that mean something for the deep actor (DAN)."""
@@ -181,8 +190,23 @@ BEYOND = TableSpec(
 """Our grid (not a table of the paper): Proxy Target (Xu et al., NeurIPS 2025) and NoisySAN exploration (Chen et
 al. 2024) against plain ILC-SAN and DAN on Hopper, 5 seeds × 200 000 steps by default."""
 
-TABLES: dict[str, TableSpec] = {spec.name: spec for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND)}
-"""The paper's five reward tables as grids, by name, and our ``beyond`` grid."""
+FIDELITY = TableSpec(
+    name="fidelity",
+    caption="Hopper's collapsed start: the intra-layer timing of Algorithm 1 against the authors' code's",
+    tasks=("Hopper",),
+    rows=(
+        RowSpec("paper", "ILC-SAN, intra timing of Algorithm 1", "ilc-san", {"intra_timing": "paper"}),
+        RowSpec("authors", "ILC-SAN, intra timing of the authors' code", "ilc-san", {"intra_timing": "authors"}),
+    ),
+    seeds=16,
+    steps=50_000,
+)
+"""Our grid (not a table of the paper): how many Hopper seeds stay in the collapsed start under each intra-layer
+timing (``--intra-timing``), 16 seeds × 50 000 steps by default (docs/fidelity-hopper/)."""
+
+TABLES: dict[str, TableSpec] = {spec.name: spec
+                                for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND, FIDELITY)}
+"""The paper's five reward tables as grids, by name, and our ``beyond`` and ``fidelity`` grids."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -350,7 +374,8 @@ def _row_td3(item: Mapping[str, Any], preset: str, where: str) -> dict[str, Any]
 
 
 def _override(key: str, value: Any, where: str) -> Any:
-    choices = {"encoder": ENCODERS, "decoder": DECODERS, "intra": INTRA_VARIANTS}.get(key)
+    choices = {"encoder": ENCODERS, "decoder": DECODERS, "intra": INTRA_VARIANTS,
+               "intra_timing": INTRA_TIMINGS}.get(key)
     if choices is not None:
         if value not in choices:
             raise UserError(f"{where}: {key} = {value!r} is not one of {', '.join(choices)}")

@@ -13,8 +13,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ..snn.diagnostics import DIAGNOSTICS, constant_saturated_action
+
 STATUS_EVERY = 200
 """Steps between two updates of the progress bar's status text."""
+STUCK_EVALUATIONS = 3
+"""Evaluations in a row after the random phase with one constant saturated action before a seed is reported stuck."""
 
 
 class TrainingCallback(Protocol):
@@ -60,13 +64,27 @@ def best_so_far(evaluations: list[list[dict[str, float]]]) -> str:
     return f"best {np.nanmean(bests):.1f}"
 
 
+def stuck_seeds(trainer: Any) -> list[int]:
+    """Indices of the seeds whose last :data:`STUCK_EVALUATIONS` evaluations after the random phase
+    (``start_steps``) each acted with one constant saturated action
+    (:func:`~ilcsan.snn.diagnostics.constant_saturated_action`)."""
+    start = trainer.config.td3.start_steps
+    stuck = []
+    for index, rows in enumerate(trainer.evaluations):
+        recent = [row for row in rows if row["step"] > start][-STUCK_EVALUATIONS:]
+        if len(recent) == STUCK_EVALUATIONS and all(constant_saturated_action(row) for row in recent):
+            stuck.append(index)
+    return stuck
+
+
 class ProgressReport:
-    """A tqdm bar over the run's steps (when ``progress``) and one line per evaluation (through the bar, or
-    ``log`` without one)."""
+    """A tqdm bar over the run's steps (when ``progress``), one line per evaluation (through the bar, or
+    ``log`` without one), and once per seed a line when it is stuck (:func:`stuck_seeds`)."""
 
     def __init__(self, progress: bool, log: Callable[[str], Any] = print):
         self.progress, self.log = progress, log
         self.bar = None
+        self.reported_stuck: set[int] = set()
 
     def start(self, trainer: Any) -> None:
         from tqdm import tqdm
@@ -88,6 +106,17 @@ class ProgressReport:
         message = (f"[{config.task} {config.label or config.actor.preset}] step {trainer.step}: eval return "
                    f"{returns} · best {best_so_far(trainer.evaluations).removeprefix('best ')} · {speed:.0f} steps/s "
                    f"({trainer.agent.execution})")
+        self._write(message)
+        for index in stuck_seeds(trainer):
+            if index not in self.reported_stuck:
+                self.reported_stuck.add(index)
+                self._write(
+                    f"[{config.task} {config.label or config.actor.preset}] seed {config.seeds[index]} is stuck: at "
+                    f"its last {STUCK_EVALUATIONS} evaluations it acted with one constant, saturated action (every "
+                    "output neuron fires the same train for every state and tanh is flat), so almost no gradient "
+                    "reaches the actor; such a seed rarely recovers (see metrics.csv's diagnostics)")
+
+    def _write(self, message: str) -> None:
         if self.progress:
             from tqdm import tqdm
 
@@ -125,6 +154,9 @@ class TensorBoardLog:
             writer.add_scalar("eval/return_mean", row["eval_return_mean"], trainer.step)
             writer.add_scalar("eval/return_std", row["eval_return_std"], trainer.step)
             writer.add_scalar("train/steps_per_second", speed, trainer.step)
+            for name in DIAGNOSTICS:
+                if name in row and np.isfinite(row[name]):
+                    writer.add_scalar(f"diagnostics/{name}", row[name], trainer.step)
             for name, value in losses.items():
                 writer.add_scalar(f"train/{name}", value, trainer.step)
             writer.flush()

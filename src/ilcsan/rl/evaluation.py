@@ -35,7 +35,8 @@ def training_evaluation_seed(run_seed: int, evaluation: int) -> int:
 
 
 def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarray], first_seeds: Sequence[int],
-                 check: Callable[[int, str, float | np.ndarray], None] | None = None
+                 check: Callable[[int, str, float | np.ndarray], None] | None = None,
+                 observe: Callable[[np.ndarray, np.ndarray], None] | None = None,
                  ) -> tuple[list[list[float]], list[list[int]]]:
     """One episode in every environment ``envs[k][e]`` (K rows of E), all stepped together.
 
@@ -43,7 +44,9 @@ def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarra
     episode (an environment whose episode has ended keeps its last observation; its action is ignored).
     Episode ``e`` of row ``k`` is reset with ``episode_seed(first_seeds[k], e)``, so the results equal the E
     episodes played one after another. ``check(k, what, value)`` sees every observation and reward before it
-    is used (to stop on non-finite values). Returns each row's returns and lengths, in episode order."""
+    is used (to stop on non-finite values); ``observe(actions, running)`` sees every step's actions (K, E, M) with
+    the (K, E) mask of the episodes still running, whose actions are taken. Returns each row's returns and lengths,
+    in episode order."""
     rows, episodes = len(envs), len(envs[0])
     observations = np.stack([np.stack([env.reset(seed=episode_seed(first_seeds[k], e))[0]
                                        for e, env in enumerate(row)]) for k, row in enumerate(envs)])
@@ -54,6 +57,8 @@ def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarra
     running = np.ones((rows, episodes), bool)
     while running.any():
         actions = act(observations)
+        if observe is not None:
+            observe(actions, running)
         for k, e in zip(*np.nonzero(running), strict=True):
             observation, reward, terminated, truncated, _ = envs[k][e].step(actions[k, e])
             check(int(k), "observation", observation)

@@ -35,6 +35,7 @@ import numpy as np
 from ..config import RunConfig
 from ..errors import UserError
 from ..files import atomic_savez, atomic_torch_save, atomic_write_json, atomic_write_text, read_json, safe_torch_load
+from ..snn.diagnostics import DIAGNOSTICS
 from .lock import DirectoryLock
 
 CONFIG = "config.json"
@@ -49,8 +50,10 @@ LOCK = ".lock"
 
 METRIC_FIELDS: tuple[str, ...] = (
     "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second",
+    *DIAGNOSTICS,
 )
-"""The columns of ``metrics.csv``, one row per evaluation."""
+"""The columns of ``metrics.csv``, one row per evaluation: the evaluation, the training speed, and the actor's
+diagnostics (:mod:`ilcsan.snn.diagnostics`; empty for runs written before they existed)."""
 REQUIRED_METRICS: tuple[str, ...] = ("step", "eval_return_mean")
 """The columns a ``metrics.csv`` must have to be read (older or foreign files may lack the others)."""
 

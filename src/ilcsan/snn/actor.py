@@ -39,12 +39,17 @@ class ActorOutput(NamedTuple):
     ``layer_inputs[l]`` is what synaptic layer l received: (K, T, B, D) spikes, or (K, B, D) for an
     analog input that is the same at every step. ``output_spikes`` (K, T, B, M·P_out) feeds the decoder
     (and the intra-layer connections at steps 1..T−1). ``voltages`` are the LI voltages (K, T, B, M).
+    ``readout`` is O (K, B, M), the decoder's output before tanh (DAN: its last layer's). ``membranes``
+    (K, T, B, M·P_out), only when asked for, is the potential each output neuron compared with V_th at each
+    step (H_t of Eq. (5) for CLIF): where |H_t − V_th| < w the surrogate gradient passes.
     """
 
     action: torch.Tensor
     layer_inputs: tuple[torch.Tensor, ...]
     output_spikes: torch.Tensor | None
     voltages: torch.Tensor | None
+    readout: torch.Tensor | None = None
+    membranes: torch.Tensor | None = None
 
 
 def checked_engine(engine: str) -> str:
@@ -88,7 +93,8 @@ class SpikingActor(_Actor):
         self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b) for a, b in zip(sizes[:-1], sizes[1:],
                                                                                    strict=True))
         mask = INTRA_MASKS[config.intra]
-        self.intra = (IntraLayerConnections(ensemble, action_dim, config.population_out, mask)
+        self.intra = (IntraLayerConnections(ensemble, action_dim, config.population_out, mask,
+                                            bias_at_first_step=config.intra_timing == "authors")
                       if any(mask) else None)
         self.decoder = PopulationDecoder(ensemble, action_dim, config.population_out, config.decoder,
                                          config.alpha_v_li)
@@ -104,27 +110,31 @@ class SpikingActor(_Actor):
             self.intra.reset_parameters(generators)
         self.decoder.reset_parameters(generators)
 
-    def layer_spikes(self, currents: torch.Tensor, output_layer: bool,
-                     transmission: torch.Tensor | None = None) -> torch.Tensor:
+    def layer_spikes(self, currents: torch.Tensor, output_layer: bool, transmission: torch.Tensor | None = None,
+                     membranes: list[torch.Tensor] | None = None) -> torch.Tensor:
         """Neuron updates of one layer over T steps; currents (K, T, B, D) → spikes (K, T, B, D).
 
-        On the output layer the intra-layer current I_t of Eq. (10) is added from t = 2 on; every other
+        On the output layer the intra-layer current I_t of Eq. (10) is added from t = 2 on (and b_intra at t = 1
+        with the authors' timing, :meth:`~ilcsan.snn.intra.IntraLayerConnections.first_current`); every other
         layer (and an output layer without intra-layer connections) runs the neuron's fused T-step train
         when it has one. ``transmission`` (NoisySAN, :class:`~ilcsan.snn.noise.NeuronNoise`) is added to the
-        spikes passed on, the intra-layer connections included.
+        spikes passed on, the intra-layer connections included. A ``membranes`` list receives the potential
+        each step compares with the threshold (:attr:`ActorOutput.membranes`).
         """
         neuron = self.neuron
         intra = self.intra if output_layer else None
-        if intra is None and neuron.train is not None:
+        if intra is None and neuron.train is not None and membranes is None:
             spikes = neuron.train(currents, neuron.params)
             return spikes if transmission is None else spikes + transmission
         state = neuron.initial_state(currents[:, 0], neuron.params)
         weight = intra.masked_weight() if intra is not None else None
         bias = intra.masked_bias() if intra is not None else None
-        spikes, intra_current = [], None
-        timesteps = currents.shape[1]
+        intra_current = intra.first_current(currents[:, 0], bias) if intra is not None else None
+        spikes, timesteps = [], currents.shape[1]
         for t in range(timesteps):
             current = currents[:, t] if intra_current is None else currents[:, t] + intra_current
+            if membranes is not None:
+                membranes.append(neuron.membrane(current, state, neuron.params))
             step_spikes, state = neuron.step(current, state, neuron.params)
             if transmission is not None:
                 step_spikes = step_spikes + transmission[:, t]
@@ -133,10 +143,11 @@ class SpikingActor(_Actor):
                 intra_current = intra(step_spikes, weight, bias)
         return torch.stack(spikes, dim=1)
 
-    def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None) -> ActorOutput:
+    def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None, membranes: bool) -> ActorOutput:
         encoded = self.encoder(state)
         values, constant = encoded.values, encoded.constant
-        inputs = []
+        inputs, recorded = [], [] if membranes else None
+        last = len(self.layers) - 1
         for index, layer in enumerate(self.layers):
             inputs.append(values)
             currents = layer(values)
@@ -144,20 +155,23 @@ class SpikingActor(_Actor):
                 currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
             if noise is not None:
                 currents = currents + noise.charge[index]
-            values = self.layer_spikes(currents, index == len(self.layers) - 1,
-                                       None if noise is None else noise.transmission[index])
+            values = self.layer_spikes(currents, index == last, None if noise is None else noise.transmission[index],
+                                       recorded if index == last else None)
             constant = False
         output, voltages = self.decoder(values, None if noise is None else noise.decoder)
-        return ActorOutput(self.squash(output), tuple(inputs), values, voltages)
+        return ActorOutput(self.squash(output), tuple(inputs), values, voltages, output,
+                           torch.stack(recorded, dim=1) if membranes else None)
 
-    def run(self, state: torch.Tensor, engine: str | None = None, noise: NeuronNoise | None = None) -> ActorOutput:
+    def run(self, state: torch.Tensor, engine: str | None = None, noise: NeuronNoise | None = None,
+            membranes: bool = False) -> ActorOutput:
         """Normalised state (K, B, N) → :class:`ActorOutput`; ``engine`` overrides :attr:`engine` for analysis;
-        ``noise`` perturbs the neurons (NoisySAN exploration, training only)."""
+        ``noise`` perturbs the neurons (NoisySAN exploration, training only); ``membranes`` records the output
+        layer's potentials (:attr:`ActorOutput.membranes`, diagnostics)."""
         if checked_engine(engine or self.engine) == "reference":
             from .reference import run_reference  # the oracle module builds on this one
 
-            return run_reference(self, state, noise)
-        return self._run_layer_major(state, noise)
+            return run_reference(self, state, noise, membranes)
+        return self._run_layer_major(state, noise, membranes)
 
     def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None) -> torch.Tensor:
         """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given."""
@@ -180,9 +194,10 @@ class DeepActor(_Actor):
         self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim))
         self.mlp.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
-    def run(self, state: torch.Tensor, engine: str | None = None) -> ActorOutput:
+    def run(self, state: torch.Tensor, engine: str | None = None, membranes: bool = False) -> ActorOutput:
         checked_engine(engine or self.engine)
-        return ActorOutput(self.squash(self.mlp(state)), (state,), None, None)
+        output = self.mlp(state)
+        return ActorOutput(self.squash(output), (state,), None, None, output)
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         return self.squash(self.mlp(state))

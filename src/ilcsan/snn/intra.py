@@ -2,7 +2,10 @@
 
 For output population m:  I_{t+1}^m = W_intra^m S_t^{L,m} + b_intra^m                     Eq. (10)
 with W_intra^m a square P_out × P_out matrix. The current reaches the output layer one step later and
-never at t = 1 (Algorithm 1).
+never at t = 1 (Algorithm 1, ``intra_timing="paper"``). The authors' released code (``popsan.py``) instead adds
+W_intra S_{t−1} + b_intra at every step t = 1..T with S_0 = 0, so that b_intra also arrives at t = 1
+(``intra_timing="authors"``): at t = 1 the output layer then receives its own bias twice, and that copy of
+b_intra shares the output bias's gradient at that step.
 
 The ablations of Table "intra" are masks on this one mechanism: the diagonal of W_intra is the self
 connection, the off-diagonal the lateral connections, b_intra the bias. A masked weight is zero at
@@ -31,9 +34,10 @@ def weight_mask(population: int, mask: IntraMask) -> torch.Tensor:
 class IntraLayerConnections(nn.Module):
     """W_intra (K, M, P, P) and b_intra (K, M, P) for K ensembles of M output populations of size P."""
 
-    def __init__(self, ensemble: int, populations: int, population_size: int, mask: IntraMask):
+    def __init__(self, ensemble: int, populations: int, population_size: int, mask: IntraMask,
+                 bias_at_first_step: bool = False):
         super().__init__()
-        self.mask = mask
+        self.mask, self.bias_at_first_step = mask, bias_at_first_step
         self.weight = nn.Parameter(torch.empty(ensemble, populations, population_size, population_size))
         self.bias = nn.Parameter(torch.empty(ensemble, populations, population_size))
         self.register_buffer("weight_mask", weight_mask(population_size, mask))
@@ -53,6 +57,14 @@ class IntraLayerConnections(nn.Module):
 
     def masked_bias(self) -> torch.Tensor:
         return self.bias * self.bias_mask
+
+    def first_current(self, like: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor | None:
+        """I_1, the intra-layer current at t = 1 for output currents shaped like ``like`` (K, B, M·P): None under
+        Algorithm 1's timing, b_intra (= W_intra S_0 + b_intra with S_0 = 0) under the authors'."""
+        if not self.bias_at_first_step:
+            return None
+        bias = self.masked_bias() if bias is None else bias
+        return bias.reshape(bias.shape[0], 1, -1).expand_as(like)
 
     def forward(self, spikes: torch.Tensor, weight: torch.Tensor | None = None,
                 bias: torch.Tensor | None = None) -> torch.Tensor:

@@ -205,13 +205,30 @@ def dynamic_step(
     C_t = α_C C_{t-1} + X_t;   v̂ = v_{t-1}(1 − s_{t-1}) + θ_r s_{t-1};   û = u_{t-1} + θ_s s_{t-1}
     v_t = v̂ + (v̂² − v̂ − û + C_t);   u_t = û + (θ_v v̂ − θ_u û);   s_t = Θ(v_t − V_th)
     """
+    current, reset_voltage, reset_recovery, voltage = _dynamic_charge(input_current, state, params)
+    recovery = reset_recovery + (params.theta_v * reset_voltage - params.theta_u * reset_recovery)
+    spikes = heaviside_spike(voltage - params.threshold, params.surrogate_width)
+    return spikes, DynamicState(current, voltage, recovery, spikes)
+
+
+def _dynamic_charge(input_current: torch.Tensor, state: DynamicState,
+                    params: DynamicParams) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """C_t, v̂, û and the voltage v_t that :func:`dynamic_step` compares with the threshold."""
     current = params.alpha_current * state.current + input_current
     reset_voltage = state.voltage * (1.0 - state.spikes) + params.theta_r * state.spikes
     reset_recovery = state.recovery + params.theta_s * state.spikes
     voltage = reset_voltage + (reset_voltage * reset_voltage - reset_voltage - reset_recovery + current)
-    recovery = reset_recovery + (params.theta_v * reset_voltage - params.theta_u * reset_recovery)
-    spikes = heaviside_spike(voltage - params.threshold, params.surrogate_width)
-    return spikes, DynamicState(current, voltage, recovery, spikes)
+    return current, reset_voltage, reset_recovery, voltage
+
+
+def dynamic_membrane(input_current: torch.Tensor, state: DynamicState, params: DynamicParams) -> torch.Tensor:
+    """v_t of :func:`dynamic_step` for this input and state: the spike is Θ(v_t − V_th)."""
+    return _dynamic_charge(input_current, state, params)[3]
+
+
+def clif_membrane(input_current: torch.Tensor, state: CLIFState, params: CLIFParams) -> torch.Tensor:
+    """H_t of :func:`clif_step` for this input and state (Eq. (5)): the spike is Θ(H_t − V_th)."""
+    return clif_charge(input_current, state, params)[1]
 
 
 # ------------------------------------------------------------------------------ the actor's neuron
@@ -223,13 +240,15 @@ class NeuronModel(NamedTuple):
     """A spiking neuron as pure functions, so both engines of the actor fire by the same rule.
 
     ``step(X_t, state, params) -> (S_t, state)`` is one update (Eq. (1)-(3)); ``initial_state(like, params)``
-    the state before t = 1; ``train(X, params)`` (CLIF only, else None) runs all T steps of a layer at once
-    and equals ``step`` applied T times.
+    the state before t = 1; ``membrane(X_t, state, params)`` the potential that ``step`` compares with the
+    threshold (H_t for CLIF), for diagnostics; ``train(X, params)`` (CLIF only, else None) runs all T steps of a
+    layer at once and equals ``step`` applied T times.
     """
 
     step: Callable[[torch.Tensor, NeuronState, NeuronParams], tuple[torch.Tensor, NeuronState]]
     initial_state: Callable[[torch.Tensor, NeuronParams], NeuronState]
     params: NeuronParams
+    membrane: Callable[[torch.Tensor, NeuronState, NeuronParams], torch.Tensor]
     train: Callable[[torch.Tensor, NeuronParams], torch.Tensor] | None = None
 
 
@@ -238,10 +257,10 @@ def neuron_model(config: ActorConfig) -> NeuronModel:
     if config.neuron == "dynamic":
         return NeuronModel(dynamic_step, dynamic_initial_state,
                            DynamicParams(alpha_current=config.alpha_c, threshold=config.v_th,
-                                         surrogate_width=config.surrogate_width))
+                                         surrogate_width=config.surrogate_width), dynamic_membrane)
     return NeuronModel(clif_step, clif_initial_state,
                        CLIFParams(config.alpha_c, config.alpha_v, config.v_th, 0.0, config.surrogate_width),
-                       clif_train)
+                       clif_membrane, clif_train)
 
 
 # ------------------------------------------------------------------------------------------- LI

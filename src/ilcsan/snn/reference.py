@@ -19,28 +19,34 @@ from .actor import ActorOutput, SpikingActor
 from .noise import NeuronNoise
 
 
-def run_reference(actor: SpikingActor, state: torch.Tensor, noise: NeuronNoise | None = None) -> ActorOutput:
+def run_reference(actor: SpikingActor, state: torch.Tensor, noise: NeuronNoise | None = None,
+                  membranes: bool = False) -> ActorOutput:
     """Normalised state (K, B, N) → :class:`ActorOutput` by Algorithm 1's time loop; ``noise`` adds NoisySAN's
-    perturbations at each step where :class:`~ilcsan.snn.noise.NeuronNoise` says."""
+    perturbations at each step where :class:`~ilcsan.snn.noise.NeuronNoise` says; ``membranes`` records the
+    output layer's potentials."""
     encoded = actor.encoder(state)
     neuron, decoder, intra = actor.neuron, actor.decoder, actor.intra
     last = len(actor.layers) - 1
     timesteps = actor.config.timesteps
     layer_states: list = [None] * len(actor.layers)
     inputs: list[list[torch.Tensor]] = [[] for _ in actor.layers]
-    output_spikes, voltages = [], []
+    output_spikes, voltages, recorded = [], [], []
     intra_current = voltage = None
     for t in range(timesteps):
         spikes = encoded.values if encoded.constant else encoded.values[:, t]
         for index, layer in enumerate(actor.layers):
             inputs[index].append(spikes)
             current = layer(spikes)
+            if index == last and t == 0 and intra is not None:
+                intra_current = intra.first_current(current)
             if index == last and intra_current is not None:
                 current = current + intra_current
             if noise is not None:
                 current = current + noise.charge[index][:, t]
             if layer_states[index] is None:
                 layer_states[index] = neuron.initial_state(current, neuron.params)
+            if index == last and membranes:
+                recorded.append(neuron.membrane(current, layer_states[index], neuron.params))
             spikes, layer_states[index] = neuron.step(current, layer_states[index], neuron.params)
             if noise is not None:
                 spikes = spikes + noise.transmission[index][:, t]
@@ -57,4 +63,5 @@ def run_reference(actor: SpikingActor, state: torch.Tensor, noise: NeuronNoise |
         for index, per_layer in enumerate(inputs)
     )
     readout = decoder.readout(spike_train, voltage_trace, None if noise is None else noise.decoder)
-    return ActorOutput(actor.squash(readout), layer_inputs, spike_train, voltage_trace)
+    return ActorOutput(actor.squash(readout), layer_inputs, spike_train, voltage_trace, readout,
+                       torch.stack(recorded, dim=1) if membranes else None)

@@ -22,10 +22,12 @@ dt = 1e-4 s (``metadata["dt"]``; the step snnTorch's importer fixes): α_C = 0.5
 as dt/(1 − α), so dt/τ is exactly 1 − α for the paper's values. The LI neuron V_t = α V_{t−1} + X_t is
 nir.LI(τ = dt/(1 − α), R = 1/(1 − α)) and, for α = 1, nir.I(R = 1/dt).
 
-b_intra acts from t = 2 on (Algorithm 1: no intra current at t = 1); a recurrent Affine would add it at t = 1
-too. A "clock" neuron at the end of the output population (zero weights, bias V_th + 1 in the last fc: it
-spikes at every step) carries b_intra in its column of the intra matrix, so through the recurrent edge's
-one-step delay b_intra arrives from t = 2 on, exactly. Present only when the mask keeps the bias.
+With Algorithm 1's timing (``intra_timing`` "paper") b_intra acts from t = 2 on (no intra current at t = 1); a
+recurrent Affine would add it at t = 1 too. A "clock" neuron at the end of the output population (zero weights,
+bias V_th + 1 in the last fc: it spikes at every step) carries b_intra in its column of the intra matrix, so
+through the recurrent edge's one-step delay b_intra arrives from t = 2 on, exactly. Present only when the mask
+keeps the bias. With the authors' timing (``intra_timing`` "authors") b_intra acts at every step from t = 1, so it
+is simply added to the output layer's fc bias and no clock is needed.
 """
 
 from __future__ import annotations
@@ -113,7 +115,10 @@ def build_graph(policy, target: str = "portable", dt: float = DT):
     config, actor = policy.actor_config, policy.actor
     weights = [_weights(layer.weight) for layer in actor.layers]
     biases = [_weights(layer.bias) for layer in actor.layers]
-    clock = actor.intra is not None and INTRA_MASKS[config.intra].bias
+    intra_bias = actor.intra is not None and INTRA_MASKS[config.intra].bias
+    clock = intra_bias and not actor.intra.bias_at_first_step
+    if intra_bias and not clock:  # the authors' timing: b_intra at every step, i.e. part of the output fc's bias
+        biases[-1] = biases[-1] + _weights(actor.intra.masked_bias()).reshape(-1)
     if clock:  # the clock neuron: zero weights, bias V_th + 1 → spikes at every step
         weights[-1] = np.vstack([weights[-1], np.zeros((1, weights[-1].shape[1]), np.float32)])
         biases[-1] = np.append(biases[-1], np.float32(config.v_th + 1.0))

@@ -14,6 +14,7 @@ from .bundle_format import (
     check_encoder_widths,
     checked_meta,
     decoder_synapses,
+    intra_bias_at_first_step,
     intra_synapses,
     read_array,
     read_bundle,
@@ -52,7 +53,8 @@ class DeployedActor(HostSide):
     workspace: Workspace = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.workspace = Workspace(self.timesteps, self.layers, self.neuron, self.intra)
+        self.workspace = Workspace(self.timesteps, self.layers, self.neuron, self.intra,
+                                   intra_bias_at_first_step=intra_bias_at_first_step(self.meta))
         # per-call constants, resolved once: SOP per spike of each train, the decoder's accumulate, the host's
         inputs = self.workspace.trains[:-1]  # each layer's presynaptic train: one spike = fan_out SOP
         self._fan_outs = [(layer.name, spikes, layer.fan_out) for layer, spikes in zip(self.layers, inputs,

@@ -33,6 +33,8 @@ NUMBER_META = ("T", "alpha_c", "alpha_v", "v_th", "v_reset", "alpha_v_li", "v_re
 VECTOR_META = ("obs_mean", "obs_std", "action_scale", "action_offset")
 STATISTICS = ("last", "max", "mean")
 NEURONS = ("clif", "dynamic")
+INTRA_TIMINGS = ("paper", "authors")
+"""Meta ``intra_timing`` (absent: ``paper``): b_intra from t = 2 on (Algorithm 1) or from t = 1 (the authors' code)."""
 MASK_PARTS = ("self_weights", "lateral_weights", "bias")
 """Meta ``intra_mask`` holds these flags (:class:`ilcsan.config.IntraMask`): which parts of Eq. (10) exist."""
 PART_NAMES = {"self": "self_weights", "lateral": "lateral_weights", "bias": "bias"}
@@ -109,7 +111,14 @@ def checked_meta(meta: Any, source: str) -> dict[str, Any]:
                         f"v_reset={meta['v_reset']}, v_reset_li={meta['v_reset_li']}")
     check_vectors(meta, source)
     intra_mask(meta, source)
+    if meta.get("intra_timing", INTRA_TIMINGS[0]) not in INTRA_TIMINGS:
+        raise UserError(f"{source}: meta 'intra_timing' {meta['intra_timing']!r} is not one of {INTRA_TIMINGS}")
     return dict(meta)
+
+
+def intra_bias_at_first_step(meta: Mapping[str, Any]) -> bool:
+    """Whether b_intra already reaches the output layer at t = 1 (meta ``intra_timing`` "authors")."""
+    return meta.get("intra_timing", INTRA_TIMINGS[0]) == "authors"
 
 
 def _check_fully_spiking(meta: Mapping[str, Any], source: str) -> None:

@@ -40,12 +40,13 @@ class Workspace:
     output layer's accumulate runs over the stacked rows [FC(L+1) rows; intra rows] with that one
     presynaptic slice: I_t = W_intra S_{t−1} (Eq. (10)) is added by the same event-driven accumulate,
     and b_intra joins the output layer's bias from t = 2 on. At t = 1 the output spikes of step 0 are
-    all zero (``reset``), so nothing is added. int8 bundles keep a separate intra accumulate (its own
-    scale; ``fold_intra=False`` keeps it separate for float weights too, for comparison).
+    all zero (``reset``), so nothing is added — unless ``intra_bias_at_first_step`` (the authors' timing,
+    :data:`INTRA_TIMINGS`), which adds b_intra from t = 1 on. int8 bundles keep a separate intra accumulate (its
+    own scale; ``fold_intra=False`` keeps it separate for float weights too, for comparison).
     """
 
     def __init__(self, timesteps: int, layers: tuple[Synapses, ...], neuron: CLIF | Dynamic,
-                 intra: Synapses | None, fold_intra: bool = True):
+                 intra: Synapses | None, fold_intra: bool = True, intra_bias_at_first_step: bool = False):
         widths = [layer.out_dim for layer in layers]
         self.offsets = np.concatenate([[0], np.cumsum(widths)]).astype(int)
         last, total = len(layers) - 1, int(self.offsets[-1])
@@ -64,6 +65,7 @@ class Workspace:
             accumulators[last] = dense_accumulator(layers[last]._replace(weights=stacked))
             intra_bias = bias.copy()
             intra_bias[columns[last]] += intra.bias
+        first_intra_tick = last if intra_bias_at_first_step else last + 1  # the output layer's step t = 1 or 2
         self.ticks = []
         for tick in range(timesteps + last):
             first, final = max(0, tick - timesteps + 1), min(tick, last)
@@ -73,7 +75,7 @@ class Workspace:
                 for index in range(first, final + 1))
             window = slice(self.offsets[first], self.offsets[final + 1])
             recurrence, tick_bias = None, bias
-            if intra is not None and final == last and tick > last:
+            if intra is not None and final == last and tick >= first_intra_tick:
                 if folded:
                     tick_bias = intra_bias
                 else:

@@ -1,0 +1,78 @@
+"""Signs that a spiking actor is stuck: the collapsed start of Hopper and its kind.
+
+The decoder's output is O = V_T = Σ_t (W_D S_t + b_D) (Eq. (7)-(8a), α_V^LI = 1) and the action a = tanh(O).
+Once |O| is large, tanh'(O) ≈ 0 and the critic's gradient barely reaches the actor; once the output spikes no
+longer depend on the state, the actor computes a constant and the surrogate gradient (|H_t − V_th| < w, Section
+III-D) is the only way back. Four numbers per seed, measured at every evaluation (:data:`DIAGNOSTICS`):
+
+``saturated_actions``      share of action components with |a − offset| > 0.99 · scale (|tanh(O)| > 0.99) over the
+                           evaluation's states;
+``frozen_output_neurons``  share of the M·P_out output neurons whose spike train S_1..S_T is the same for every
+                           state of a replay batch;
+``surrogate_active``       share of output-neuron steps with |H_t − V_th| < w over that batch: where the surrogate
+                           gradient can flow at all;
+``mean_abs_preaction``     mean |O| over that batch and the M action dimensions.
+
+A seed acts with a *constant saturated action* (:func:`constant_saturated_action`) when nearly every evaluation
+action is saturated and every output neuron is frozen: then its action is the same corner of the action box for
+every state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .actor import ActorOutput
+
+DIAGNOSTICS: tuple[str, ...] = ("saturated_actions", "frozen_output_neurons", "surrogate_active",
+                                "mean_abs_preaction")
+"""The diagnostic columns of ``metrics.csv``, in order."""
+SATURATION = 0.99
+"""An action component is saturated when |tanh(O)| exceeds this."""
+CONSTANT_SATURATED_SHARE = 0.99
+"""The share of saturated evaluation actions above which, with every output neuron frozen, a seed's action is a
+constant corner of the action box."""
+
+
+def saturated_share(actions: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> float:
+    """Share of the components of ``actions`` (..., M) with |a − offset| > :data:`SATURATION` · scale."""
+    actions = np.asarray(actions, dtype=np.float64)
+    if actions.size == 0:
+        return float("nan")
+    return float(np.mean(np.abs(actions - offset) > SATURATION * np.asarray(scale)))
+
+
+def output_diagnostics(output: ActorOutput, threshold: float, surrogate_width: float) -> dict[str, np.ndarray]:
+    """``frozen_output_neurons``, ``surrogate_active`` and ``mean_abs_preaction`` of each of the K seeds, (K,) each,
+    from one forward pass over a batch of states run with ``membranes=True``; a deep actor (no spikes) gets only
+    ``mean_abs_preaction``."""
+    result = {"mean_abs_preaction": output.readout.abs().mean(dim=(1, 2)).double().cpu().numpy()}
+    if output.output_spikes is None:
+        return result
+    spikes = output.output_spikes  # (K, T, B, M·P)
+    frozen = (spikes == spikes[:, :, :1]).all(dim=2).all(dim=1)  # (K, M·P): the same train for every state
+    active = ((output.membranes - threshold).abs() < surrogate_width).double()
+    result["frozen_output_neurons"] = frozen.double().mean(dim=1).cpu().numpy()
+    result["surrogate_active"] = active.mean(dim=(1, 2, 3)).cpu().numpy()
+    return result
+
+
+@torch.no_grad()
+def diagnose_actor(actor, states: torch.Tensor) -> list[dict[str, float]]:
+    """The replay-batch diagnostics of each seed for normalised ``states`` (K, B, N), without touching the global
+    random stream (a Bernoulli encoder draws from it)."""
+    with torch.random.fork_rng(devices=[]):
+        output = actor.run(states, membranes=True)
+    neuron = getattr(actor, "neuron", None)
+    params = neuron.params if neuron is not None else None
+    values = output_diagnostics(output, params.threshold if params else 0.0, params.surrogate_width if params else 0.0)
+    return [{name: float(array[index]) for name, array in values.items()} for index in range(states.shape[0])]
+
+
+def constant_saturated_action(row: dict[str, float]) -> bool:
+    """Whether an evaluation row says the seed acted with one constant, saturated action."""
+    saturated, frozen = row.get("saturated_actions"), row.get("frozen_output_neurons")
+    if saturated is None or frozen is None or not (np.isfinite(saturated) and np.isfinite(frozen)):
+        return False
+    return saturated >= CONSTANT_SATURATED_SHARE and frozen >= 1.0
