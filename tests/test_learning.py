@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import csv
+
 import pytest
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.evaluation import random_policy_return
 from ilcsan.rl.settings import set_matmul_precision
 from ilcsan.rl.training import train
+from ilcsan.snn.diagnostics import constant_saturated_action
 
 THRESHOLD = -600.0  # Pendulum-v1: random actions score about -1200, a swinging-up policy above -400
 
@@ -27,6 +30,10 @@ def test_ilc_san_learns_pendulum(tmp_path, matmul):
     random_return = random_policy_return("Pendulum-v1", episodes=5, seed=0)
     assert random_return < -900.0, "the threshold must be out of reach of random actions"
     assert result["best_return"] > THRESHOLD, f"ILC-SAN ({matmul}) reached only {result['best_return']:.1f}"
+    with open(tmp_path / "run" / "metrics.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert all(float(row["frozen_output_neurons"]) < 1.0 for row in rows), "a learning actor's outputs respond"
+    assert not constant_saturated_action({name: float(value) for name, value in rows[-1].items()})
 
 
 def test_an_actor_that_cannot_learn_stays_below_the_threshold(tmp_path):

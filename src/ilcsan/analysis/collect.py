@@ -33,6 +33,7 @@ import numpy as np
 from ..config import TD3Config
 from ..errors import UserError
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
+from ..snn.diagnostics import is_stuck
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,23 @@ class RunRecord:
     """``eval_return_mean`` at each of ``steps``."""
     td3: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
     """The run's TD3 settings as config.json holds them (empty for runs written without them)."""
+    diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
+    """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.snn.diagnostics.DIAGNOSTICS`) at each of ``steps``,
+    NaN where it was not measured."""
+
+    def evaluation_rows(self) -> list[dict[str, float]]:
+        """``metrics.csv`` as rows of step, return and diagnostics, as the training loop keeps its evaluations."""
+        rows = [{"step": step, "eval_return_mean": value} for step, value in zip(self.steps, self.returns, strict=True)]
+        for name, values in self.diagnostics.items():
+            for row, value in zip(rows, values, strict=True):
+                row[name] = value
+        return rows
+
+    @property
+    def stuck(self) -> bool:
+        """Whether the run ended stuck in one constant saturated action (:func:`~ilcsan.snn.diagnostics.is_stuck`)."""
+        start_steps = self.td3.get("start_steps", TD3Config.start_steps)
+        return is_stuck(self.evaluation_rows(), start_steps)
 
     @property
     def preset(self) -> str | None:
@@ -126,7 +144,8 @@ def read_run(directory: str | Path) -> RunRecord:
     config = run.config_object()
     task, seed, label, table, row, actor = _parse_config(config)
     td3 = config.get("td3") if isinstance(config.get("td3"), dict) else {}
-    steps, returns = run.evaluation_curve()
+    steps, columns = run.evaluation_columns()
+    returns = columns.get("eval_return_mean", ())
     result = run.result()
     if result is None and not steps:
         raise RunFileError("neither result.json nor metrics.csv (no evaluation yet)")
@@ -142,6 +161,7 @@ def read_run(directory: str | Path) -> RunRecord:
         path=run.path, task=task, seed=seed, label=label, table=table, row=row, actor=actor,
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
         finished=finished, steps=steps, returns=returns, td3=td3,
+        diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
     )
 
 

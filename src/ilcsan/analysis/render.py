@@ -9,12 +9,17 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Sequence
 
 from ..experiments.tables import STEPS
+from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
 from .collect import SkippedRun
 from .followups import FOLLOW_UPS, NOT_FOUND
 from .tables import Cell, RowResult, TableResult
+
+DIAGNOSTIC_HEADERS = {"saturated_actions": "Saturated", "frozen_output_neurons": "Frozen outputs",
+                      "surrogate_active": "Surrogate window", "mean_abs_preaction": "Mean abs(O)"}
 
 
 def _decimals(value: float) -> int:
@@ -109,7 +114,35 @@ def _md_table(result: TableResult) -> list[str]:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
         lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
     lines.append("")
-    return lines + _md_follow_ups(result)
+    return lines + _md_follow_ups(result) + _md_seeds(result)
+
+
+def _diagnostic(run, name: str) -> str:
+    values = run.diagnostics.get(name, ())
+    return f"{values[-1]:.2f}" if values and math.isfinite(values[-1]) else "—"
+
+
+def _md_seeds(result: TableResult) -> list[str]:
+    """Every seed run of the table: its best and last evaluation and the actor's diagnostics at its last evaluation
+    (:mod:`ilcsan.snn.diagnostics`), with the seeds stuck in one constant saturated action marked."""
+    runs = [(row, cell, run) for row in result.rows for cell in row.cells for run in cell.runs]
+    if not runs:
+        return []
+    stuck = sum(run.stuck for _, _, run in runs)
+    header = ["Row", "Task", "Seed", "Best (step)", "Last", "Steps",
+              *(DIAGNOSTIC_HEADERS[name] for name in DIAGNOSTICS), "Stuck"]
+    lines = [f"Seed runs of `{result.name or result.caption}` ({len(runs)}; stuck at their last evaluations: {stuck}). "
+             "Diagnostics at the last evaluation: share of saturated actions, of output neurons with the same spike "
+             "train for every replayed state, of output-neuron steps inside the surrogate window, and mean |pre-tanh "
+             "output|; stuck = one constant saturated action at the last "
+             f"{STUCK_EVALUATIONS} evaluations after the random phase.", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row, cell, run in runs:
+        values = [_md_escape(row.label), cell.task, str(run.seed), f"{run.best_return:.1f} ({_steps(run.best_step)})",
+                  f"{run.returns[-1]:.1f}" if run.returns else "—", _steps(run.steps_done),
+                  *(_diagnostic(run, name) for name in DIAGNOSTICS), "**stuck**" if run.stuck else ""]
+        lines.append("| " + " | ".join(values) + " |")
+    return [*lines, ""]
 
 
 def _steps(count: int) -> str:

@@ -13,12 +13,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..snn.diagnostics import DIAGNOSTICS, constant_saturated_action
+from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS, is_stuck
 
 STATUS_EVERY = 200
 """Steps between two updates of the progress bar's status text."""
-STUCK_EVALUATIONS = 3
-"""Evaluations in a row after the random phase with one constant saturated action before a seed is reported stuck."""
 
 
 class TrainingCallback(Protocol):
@@ -65,16 +63,9 @@ def best_so_far(evaluations: list[list[dict[str, float]]]) -> str:
 
 
 def stuck_seeds(trainer: Any) -> list[int]:
-    """Indices of the seeds whose last :data:`STUCK_EVALUATIONS` evaluations after the random phase
-    (``start_steps``) each acted with one constant saturated action
-    (:func:`~ilcsan.snn.diagnostics.constant_saturated_action`)."""
+    """Indices of the seeds that are stuck (:func:`~ilcsan.snn.diagnostics.is_stuck`) at their last evaluation."""
     start = trainer.config.td3.start_steps
-    stuck = []
-    for index, rows in enumerate(trainer.evaluations):
-        recent = [row for row in rows if row["step"] > start][-STUCK_EVALUATIONS:]
-        if len(recent) == STUCK_EVALUATIONS and all(constant_saturated_action(row) for row in recent):
-            stuck.append(index)
-    return stuck
+    return [index for index, rows in enumerate(trainer.evaluations) if is_stuck(rows, start)]
 
 
 class ProgressReport:

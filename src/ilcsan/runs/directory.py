@@ -132,10 +132,17 @@ class RunDirectory:
     def evaluation_curve(self) -> tuple[tuple[int, ...], tuple[float, ...]]:
         """Steps and mean returns of ``metrics.csv`` sorted by step, a repeated step keeping its last line;
         empty when the file is absent (RunFileError when damaged)."""
+        steps, columns = self.evaluation_columns()
+        return steps, columns.get("eval_return_mean", ())
+
+    def evaluation_columns(self) -> tuple[tuple[int, ...], dict[str, tuple[float, ...]]]:
+        """Steps of ``metrics.csv`` sorted by step (a repeated step keeping its last line) and, aligned with them,
+        ``eval_return_mean`` and each diagnostic column (NaN where a row leaves it empty or the file has no such
+        column); empty when the file is absent (RunFileError when damaged)."""
         path = self.file(METRICS)
         if not path.exists():
-            return (), ()
-        return _read_curve(_read_text(path))
+            return (), {}
+        return _read_metrics(_read_text(path))
 
     # ----------------------------------------------------------------------------------------- writes
     def write_config(self, config: RunConfig, seed: int, measured: dict[str, Any] | None = None) -> None:
@@ -230,7 +237,15 @@ def _json_object(path: Path) -> dict[str, Any]:
     return data
 
 
-def _read_curve(text: str) -> tuple[tuple[int, ...], tuple[float, ...]]:
+def _optional_number(text: str) -> float:
+    """A diagnostic cell: its number, NaN when empty or not a number (the column is informative, never fatal)."""
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+
+
+def _read_metrics(text: str) -> tuple[tuple[int, ...], dict[str, tuple[float, ...]]]:
     lines = [line for line in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in line)]
     if not lines:
         raise RunFileError(f"{METRICS}: empty file")
@@ -239,7 +254,9 @@ def _read_curve(text: str) -> tuple[tuple[int, ...], tuple[float, ...]]:
         if name not in header:
             raise RunFileError(f"{METRICS}: the header has no {name!r} column")
     i_step, i_return = header.index("step"), header.index("eval_return_mean")
+    optional = {name: header.index(name) for name in DIAGNOSTICS if name in header}
     by_step: dict[int, float] = {}
+    diagnostics: dict[int, dict[str, float]] = {}
     for number, line in enumerate(lines[1:], start=2):
         if len(line) != len(header):
             raise RunFileError(f"{METRICS} line {number}: {len(line)} fields, the header has {len(header)}")
@@ -250,7 +267,11 @@ def _read_curve(text: str) -> tuple[tuple[int, ...], tuple[float, ...]]:
         if not (math.isfinite(step) and step == int(step) and step >= 0 and math.isfinite(value)):
             raise RunFileError(f"{METRICS} line {number}: bad step or return ({line[i_step]}, {line[i_return]})")
         by_step[int(step)] = value
+        diagnostics[int(step)] = {name: _optional_number(line[index]) for name, index in optional.items()}
     if not by_step:
         raise RunFileError(f"{METRICS}: no evaluation rows")
     ordered = sorted(by_step)
-    return tuple(ordered), tuple(by_step[step] for step in ordered)
+    columns = {"eval_return_mean": tuple(by_step[step] for step in ordered)}
+    for name in DIAGNOSTICS:
+        columns[name] = tuple(diagnostics[step].get(name, math.nan) for step in ordered)
+    return tuple(ordered), columns

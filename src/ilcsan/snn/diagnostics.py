@@ -20,6 +20,8 @@ every state.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
 import numpy as np
 import torch
 
@@ -70,7 +72,18 @@ def diagnose_actor(actor, states: torch.Tensor) -> list[dict[str, float]]:
     return [{name: float(array[index]) for name, array in values.items()} for index in range(states.shape[0])]
 
 
-def constant_saturated_action(row: dict[str, float]) -> bool:
+STUCK_EVALUATIONS = 3
+"""Evaluations in a row after the random phase with one constant saturated action before a seed counts as stuck."""
+
+
+def is_stuck(rows: Sequence[Mapping[str, float]], start_steps: int) -> bool:
+    """Whether the last :data:`STUCK_EVALUATIONS` evaluation rows after the random phase (step > ``start_steps``)
+    each acted with one constant saturated action (:func:`constant_saturated_action`)."""
+    recent = [row for row in rows if row["step"] > start_steps][-STUCK_EVALUATIONS:]
+    return len(recent) == STUCK_EVALUATIONS and all(constant_saturated_action(row) for row in recent)
+
+
+def constant_saturated_action(row: Mapping[str, float]) -> bool:
     """Whether an evaluation row says the seed acted with one constant, saturated action."""
     saturated, frozen = row.get("saturated_actions"), row.get("frozen_output_neurons")
     if saturated is None or frozen is None or not (np.isfinite(saturated) and np.isfinite(frozen)):
