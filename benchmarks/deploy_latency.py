@@ -50,7 +50,7 @@ def calibrated_policy(task: str, seed: int = 0):
     from spiking_policies import observations, random_policy
 
     from ilcsan.analysis.energy import measure_firing_rates
-    from ilcsan.analysis.paper import FIRING_RATES
+    from ilcsan.paper.published import FIRING_RATES
 
     state_dim, action_dim = TASKS[task]
     target = FIRING_RATES["ilc-san"][task].fc2

@@ -24,9 +24,9 @@ from ilcsan.analysis.energy import (
     synaptic_layers,
 )
 from ilcsan.analysis.energy_tables import TASK_ORDER, energy_table
-from ilcsan.analysis.paper import ENERGY_NJ, FIRING_RATES, OP_COUNTS
 from ilcsan.cli.grid_commands import cmd_energy
 from ilcsan.errors import UserError
+from ilcsan.paper.published import ENERGY_NJ, FIRING_RATES, OP_COUNTS
 
 T = 5
 PAPER_LAYERS = ("fc1", "fc2", "fc3", "group_fc", "intra_fc")

@@ -16,6 +16,7 @@ from ilcsan.experiments.backends import RayBackend, ray_node_address
 from ilcsan.experiments.coordinator import run_grid
 from ilcsan.experiments.estimate import estimate_hours, list_tables, row_step_cost
 from ilcsan.experiments.grid import GridOptions, expand_grid
+from ilcsan.experiments.grid_files import load_grid
 from ilcsan.experiments.jobs import (
     Job,
     JobOutcome,
@@ -27,7 +28,7 @@ from ilcsan.experiments.jobs import (
     run_state,
 )
 from ilcsan.experiments.progress import format_duration
-from ilcsan.experiments.tables import TABLES, load_grid
+from ilcsan.paper.layouts import TABLES
 from ilcsan.rl.training import Trainer, train
 
 TINY_TD3 = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}

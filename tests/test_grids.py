@@ -1,5 +1,5 @@
-"""The paper's tables as grids (ilcsan.experiments.tables), user grids from TOML, and the transcription of the
-paper's numbers (ilcsan.analysis.paper) checked against the paper's own arithmetic."""
+"""The paper's tables as grids (ilcsan.paper.layouts), user grids from TOML (ilcsan.experiments.grid_files), and
+the transcription of the paper's numbers (ilcsan.paper.published) checked against the paper's own arithmetic."""
 
 from __future__ import annotations
 
@@ -10,21 +10,23 @@ from pathlib import Path
 
 import pytest
 
-from ilcsan.analysis import paper
 from ilcsan.errors import UserError
-from ilcsan.experiments import tables as grids
-from ilcsan.experiments.tables import TABLES, load_grid
+from ilcsan.experiments import grid_files as grids
+from ilcsan.experiments.grid_files import load_grid
+from ilcsan.paper import published as paper
+from ilcsan.paper.layouts import TABLES
 
 # ------------------------------------------------------------------------------------------------
 # Built-in grids
 
 
-PAPER_TABLES = [name for name in TABLES if name != "beyond"]
+PAPER_TABLES = list(paper.REWARD_TABLES)
 
 
 def test_the_five_tables_with_the_papers_protocol() -> None:
-    assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer", "beyond"]
-    assert TABLES["perf"].tasks == paper.PAPER_TASKS
+    assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer", "beyond", "fidelity"]
+    assert PAPER_TABLES == list(TABLES)[:5]
+    assert TABLES["perf"].tasks == paper.PAPER_TASK_NAMES
     assert len(TABLES["perf"].tasks) == 8
     for name in ("decode", "dec_intra", "intra", "layer"):
         assert TABLES[name].tasks == ("Ant", "HalfCheetah", "Hopper", "Walker2d")
@@ -289,7 +291,7 @@ def test_published_cell_lookup() -> None:
 
 
 def test_task_dimensions() -> None:
-    assert tuple(paper.TASKS) == paper.PAPER_TASKS
+    assert tuple(paper.TASKS) == paper.PAPER_TASK_NAMES
     assert (paper.TASKS["Ant"].n, paper.TASKS["Ant"].m) == (111, 8)
     assert (paper.TASKS["Humanoid"].n, paper.TASKS["Humanoid"].m) == (376, 17)
     assert paper.TASKS["InvertedDoublePendulum"].paper_id == "InvertedDoublePendulum-v2"
@@ -376,7 +378,7 @@ def test_perf_transcription_matches_the_tex() -> None:
     rows = _tex_rows("perf")
     table = paper.REWARD_TABLES["perf"]
     assert len(rows) == 9
-    for task, row in zip(paper.PAPER_TASKS, rows[:8], strict=True):
+    for task, row in zip(paper.PAPER_TASK_NAMES, rows[:8], strict=True):
         assert row[0].startswith(task + "-v")
         for slug, cell in zip(table.slugs, row[1:], strict=True):
             assert table.row(slug).cells.get(task) == _stat(cell), (task, slug)
@@ -420,6 +422,6 @@ def test_energy_transcription_matches_the_tex() -> None:
 
 @needs_tex
 def test_task_table_matches_the_tex() -> None:
-    for task, row in zip(paper.PAPER_TASKS, _tex_rows("task"), strict=True):
+    for task, row in zip(paper.PAPER_TASK_NAMES, _tex_rows("task"), strict=True):
         assert (row[0], int(row[1]), int(row[2])) == (paper.TASKS[task].paper_id, paper.TASKS[task].n,
                                                       paper.TASKS[task].m)

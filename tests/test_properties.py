@@ -38,17 +38,10 @@ from hypothesis.extra import numpy as hnp
 
 import ilcsan
 from ilcsan.cli import build_parser, main
+from ilcsan.config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES
 from ilcsan.errors import UserError
-from ilcsan.experiments.tables import (
-    DECODERS,
-    ENCODERS,
-    INTRA_VARIANTS,
-    OVERRIDE_KEYS,
-    PRESET_NAMES,
-    TableSpec,
-    grid_from_dict,
-    load_grid,
-)
+from ilcsan.experiments.grid_files import OVERRIDE_KEYS, grid_from_dict, load_grid
+from ilcsan.paper.layouts import TableSpec
 
 SCALE = max(1, int(os.environ.get("ILCSAN_PROPERTY_SCALE", "1")))
 EXAMPLES: collections.Counter[str] = collections.Counter()

@@ -19,7 +19,7 @@ from ilcsan.analysis.render import format_stat, render_csv, render_latex, render
 from ilcsan.analysis.report import report_layout, write_report
 from ilcsan.analysis.tables import build_table, report_tables
 from ilcsan.cli.grid_commands import cmd_report
-from ilcsan.experiments.tables import TABLES
+from ilcsan.paper.layouts import TABLES
 
 HEADER = "step,eval_return_mean,eval_return_std,eval_length_mean,wall_seconds,steps_per_second"
 

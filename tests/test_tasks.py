@@ -8,15 +8,15 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from ilcsan.analysis import paper
 from ilcsan.cli import main
 from ilcsan.errors import UserError
+from ilcsan.paper import published as paper
 from ilcsan.rl import tasks
 from ilcsan.rl.tasks import PAPER_TASKS, make_env
 
 
 def test_paper_tasks_follow_the_papers_table():
-    assert tuple(PAPER_TASKS) == paper.PAPER_TASKS
+    assert tuple(PAPER_TASKS) == paper.PAPER_TASK_NAMES
     for name, spec in PAPER_TASKS.items():
         assert (spec.paper_id, spec.state_dim, spec.action_dim) == (paper.TASKS[name].paper_id, paper.TASKS[name].n,
                                                                     paper.TASKS[name].m)

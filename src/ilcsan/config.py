@@ -85,6 +85,14 @@ INTRA_MASKS: dict[str, IntraMask] = {
 }
 """Every intra-layer variant as a mask on one mechanism; ``none`` keeps nothing (no intra-layer module)."""
 INTRA_VARIANTS: tuple[str, ...] = tuple(INTRA_MASKS)
+
+
+def intra_label(variant: str) -> str:
+    """The paper's name of an intra-layer variant (Table intra's rows): ``No I_intra`` for ``none``, else each kept
+    part as a current, e.g. ``I_intra``, ``I_self``, ``I_self+I_lateral``."""
+    if variant not in INTRA_MASKS:
+        raise KeyError(f"no intra-layer variant {variant!r}; the variants are {', '.join(INTRA_VARIANTS)}")
+    return "No I_intra" if variant == "none" else "+".join(f"I_{part}" for part in variant.split("+"))
 INTRA_TIMING_SOURCES: dict[str, str] = {
     "paper": "Algorithm 1: I_t = W_intra S_{t-1} + b_intra from t = 2 on, nothing at t = 1",
     "authors": "the authors' released code (popsan.py): W_intra S_{t-1} + b_intra at every t = 1..T, so b_intra "

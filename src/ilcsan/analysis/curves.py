@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..experiments.tables import TableSpec
 from ..files import atomic_write_file
+from ..paper.layouts import TableSpec
 from .collect import RunRecord
 from .tables import TableResult, build_table
 

@@ -66,7 +66,7 @@ import numpy as np
 
 from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig
 from ..errors import UserError
-from .paper import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES
+from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES
 
 GROUP_FC = "Group FC"
 INTRA_FC = "Intra FC"

@@ -6,8 +6,8 @@ import statistics
 from collections.abc import Iterable, Sequence
 
 from ..errors import UserError
+from ..paper.published import ENERGY_TASKS
 from .energy import COSTS, GROUP_FC, INTRA_FC, EnergyCosts, EnergyReport, LayerCount, analytic_report
-from .paper import ENERGY_TASKS
 
 LABELS = {"dan": "DAN", "popsan": "PopSAN", "ilc-san": "ILC-SAN", "mdc-san": "MDC-SAN", "akl": "Akl et al."}
 """The paper's name of each actor preset, in the order of Table power's columns."""

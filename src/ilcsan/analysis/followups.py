@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .paper import Stat
+from ..paper.published import Stat
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ import io
 import math
 from collections.abc import Sequence
 
-from ..experiments.tables import STEPS
+from ..paper.layouts import STEPS
 from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
 from .collect import SkippedRun
 from .followups import FOLLOW_UPS, NOT_FOUND

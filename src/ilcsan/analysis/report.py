@@ -19,8 +19,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import UserError
-from ..experiments.tables import TABLES, TableSpec, load_grid
+from ..experiments.grid_files import load_grid
 from ..files import atomic_write_text
+from ..paper.layouts import TABLES, TableSpec
 from .collect import RunRecord, RunScan, SkippedRun, collect_runs, read_run, scan_runs
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
 from .render import format_stat, latex_escape, render_csv, render_latex, render_markdown

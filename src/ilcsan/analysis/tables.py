@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from ..config import actor_config
-from ..experiments.tables import TABLES, RowSpec, TableSpec
+from ..paper.layouts import TABLES, RowSpec, TableSpec
+from ..paper.published import PAPER_TASK_NAMES, Stat, published_apr, published_cell
 from .collect import RunRecord, configuration_key, row_identity
-from .paper import PAPER_TASKS, Stat, published_apr, published_cell
 
 
 @dataclass(frozen=True)
@@ -133,7 +133,7 @@ class _RowDraft:
 def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None) -> TableResult:
     """Build one table from runs.
 
-    ``table`` a table name of :data:`ilcsan.experiments.tables.TABLES` or a :class:`TableSpec`: its rows and tasks,
+    ``table`` a table name of :data:`ilcsan.paper.layouts.TABLES` or a :class:`TableSpec`: its rows and tasks,
     every cell present (``—`` where there are no runs), runs placed by their ``table``/``row`` tags, and
     untagged runs by their label (or row slug) matching a row's, else by their configuration. Any other name
     selects the runs tagged with it. None: all runs, rows by label (by tag when tagged), columns the tasks found.
@@ -242,7 +242,7 @@ def _same_label(groups: Sequence[_RowDraft]) -> list[list[_RowDraft]]:
 def _tasks_in(runs: Iterable[RunRecord]) -> tuple[str, ...]:
     """Tasks found, the paper's eight first in the paper's order, then the others alphabetically."""
     found = {run.task for run in runs}
-    return tuple(task for task in PAPER_TASKS if task in found) + tuple(sorted(found - set(PAPER_TASKS)))
+    return tuple(task for task in PAPER_TASK_NAMES if task in found) + tuple(sorted(found - set(PAPER_TASK_NAMES)))
 
 
 def _dan_reference(groups: Sequence[_RowDraft], reference: Sequence[RunRecord],

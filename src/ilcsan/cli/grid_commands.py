@@ -33,7 +33,7 @@ def cmd_reproduce(args) -> int:
     from ..experiments.coordinator import run_grid
     from ..experiments.estimate import list_tables
     from ..experiments.grid import expand_grid, table_to_reproduce
-    from ..experiments.tables import TABLES
+    from ..paper.layouts import TABLES
 
     if args.list:
         specs = [table_to_reproduce(args.table)[0]] if args.table else None

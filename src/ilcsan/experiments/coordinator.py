@@ -1,6 +1,6 @@
 """Every table of the paper as one command: ``ilcsan reproduce TABLE``, locally or on a Ray cluster.
 
-A table (:data:`ilcsan.experiments.tables.TABLES`, or a user's TOML grid) expands into runs, one per
+A table (:data:`ilcsan.paper.layouts.TABLES`, or a user's TOML grid) expands into runs, one per
 (task, row, seed), laid out as ``OUT/<table>/<task>/<row-slug>/seed<k>/`` (:mod:`.grid`); each is an
 ordinary run folder (:mod:`ilcsan.runs.directory`) whose ``config.json`` carries ``table``, ``row`` and
 ``label``.

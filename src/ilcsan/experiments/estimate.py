@@ -8,7 +8,7 @@ from collections.abc import Iterable
 
 from ..config import TD3Config
 from ..errors import UserError
-from .tables import TABLES, RowSpec, TableSpec
+from ..paper.layouts import TABLES, RowSpec, TableSpec
 
 MEASURED_STEPS_PER_SECOND = {"AuthenticAMD": 130.0, "GenuineIntel": 180.0}
 """Environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations

@@ -15,10 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..analysis.paper import PAPER_TASKS
 from ..config import RunConfig, TD3Config, actor_config
 from ..errors import UserError
-from .tables import TABLES, RowSpec, TableSpec, load_grid
+from ..paper.layouts import TABLES, RowSpec, TableSpec
+from ..paper.published import PAPER_TASK_NAMES
+from .grid_files import load_grid
 
 
 @dataclass(frozen=True)
@@ -161,7 +162,7 @@ def runnable_task(name: str) -> str:
     registered and has a Box action space (checked by building it once); UserError otherwise."""
     from ..rl.tasks import make_env, resolve_task
 
-    short = next((task for task in PAPER_TASKS if task.lower() == name.lower()), None)
+    short = next((task for task in PAPER_TASK_NAMES if task.lower() == name.lower()), None)
     if short is not None:
         return short
     resolve_task(name)  # an unknown name: one sentence naming the tasks there are

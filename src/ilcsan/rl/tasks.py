@@ -7,7 +7,7 @@ InvertedDoublePendulum. Gymnasium marks ``-v4`` "out of date"; that notice is ex
 off the console (:data:`VERSION_NOTE`, printed once by ``ilcsan tasks``). A full Gymnasium id passes
 through as it is.
 
-The paper's facts (order, Gym id, N, M) come from :mod:`ilcsan.analysis.paper`; only the Gymnasium side
+The paper's facts (order, Gym id, N, M) come from :mod:`ilcsan.paper.published`; only the Gymnasium side
 (id, keyword arguments, a note) is declared here. Every failure to build a task, whatever Gymnasium or
 the simulator raises, becomes one :class:`UserError` naming the task, the cause and a fix.
 """
@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from ..analysis.paper import PAPER_TASKS as PAPER_ORDER
-from ..analysis.paper import TASKS as PAPER_DIMS
 from ..errors import UserError
+from ..paper.published import PAPER_TASK_NAMES
+from ..paper.published import TASKS as PAPER_DIMS
 
 MUJOCO_VERSION = "v4"
 VERSION_NOTE = (f"MuJoCo tasks use Gymnasium's -{MUJOCO_VERSION} versions, whose states have the paper's sizes N "
@@ -63,7 +63,7 @@ def _spec(name: str) -> TaskSpec:
                     dict(ours.get("kwargs", {})), ours.get("note", ""))
 
 
-PAPER_TASKS: dict[str, TaskSpec] = {name: _spec(name) for name in PAPER_ORDER}
+PAPER_TASKS: dict[str, TaskSpec] = {name: _spec(name) for name in PAPER_TASK_NAMES}
 """The paper's tasks by short name, in the paper's order."""
 
 _LOWER_NAMES = {name.lower(): name for name in PAPER_TASKS}

@@ -17,8 +17,8 @@ Tables, by their LaTeX label:
 ``tab:op``        :data:`OP_COUNTS` — operations per FC layer (SOP, or FLOP for PopSAN's Group FC).
 ``tab:power``     :data:`ENERGY_NJ` — energy per inference in nJ.
 
-Row keys are the stable slugs of :mod:`ilcsan.experiments.tables`, so a run made by ``ilcsan reproduce`` finds its
-published cell by ``(table, row slug, task)``. Rewards are "max average reward over 10 random seeds":
+Row keys are the stable slugs of the grids in :mod:`ilcsan.paper.layouts`, so a run made by ``ilcsan reproduce``
+finds its published cell by ``(table, row slug, task)``. Rewards are "max average reward over 10 random seeds":
 each seed's best evaluation (mean over 10 episodes), then mean ± std over the seeds. APR is printed in
 percent; for ``decode``/``dec_intra``/``intra``/``layer`` it is relative to the DAN row of ``perf``
 (the only DAN row in the paper). Every published APR follows from its row to within 0.02 percentage
@@ -37,7 +37,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-PAPER_TASKS: tuple[str, ...] = (
+from ..config import intra_label
+
+PAPER_TASK_NAMES: tuple[str, ...] = (
     "Ant",
     "HalfCheetah",
     "Hopper",
@@ -49,7 +51,7 @@ PAPER_TASKS: tuple[str, ...] = (
 )
 """The eight tasks of Table ``tab:perf``, in the paper's order, by short name."""
 
-FIRST_FOUR: tuple[str, ...] = PAPER_TASKS[:4]
+FIRST_FOUR: tuple[str, ...] = PAPER_TASK_NAMES[:4]
 """The four tasks of every other table (Ant, HalfCheetah, Hopper, Walker2d)."""
 
 
@@ -124,13 +126,18 @@ def _r(slug: str, label: str, apr: float, *values: tuple[float, float], tasks=FI
     return PaperRow(slug, label, _cells(tasks, *values), apr)
 
 
-_P8 = PAPER_TASKS
+def _intra(variant: str, apr: float, *values: tuple[float, float]) -> PaperRow:
+    """A row of Table intra: its slug is the intra-layer variant, its label the paper's name of that variant."""
+    return _r(variant, intra_label(variant), apr, *values)
+
+
+_P8 = PAPER_TASK_NAMES
 _AC_BCQ_TASKS = FIRST_FOUR  # AC-BCQ prints "−" for the last four tasks; its APR is over these four.
 
 PERF = PaperTable(
     name="perf",
     caption="Max average rewards over 10 random seeds for DAN, ILC-SAN and other SANs",
-    tasks=PAPER_TASKS,
+    tasks=PAPER_TASK_NAMES,
     rows=(
         #                                          Ant           HalfCheetah     Hopper        Walker2d
         #                                          Humanoid      HumanoidStandup InvDblPendulum BipedalWalker
@@ -198,17 +205,17 @@ INTRA = PaperTable(
     name="intra",
     caption="Max average rewards over 10 random seeds for ablation study on intra-layer connections",
     tasks=FIRST_FOUR,
-    rows=(
-        #                                                   Ant          HalfCheetah    Hopper        Walker2d
-        _r("none", "No I_intra", 94.95, (5433, 619), (9932, 1238), (3249, 1082), (4668, 702)),
-        _r("self", "I_self", 97.40, (5245, 769), (10168, 1465), (3512, 146), (4843, 757)),
-        _r("lateral", "I_lateral", 95.55, (5389, 747), (9384, 987), (3521, 145), (4702, 728)),
-        _r("bias", "I_bias", 90.56, (4935, 862), (9906, 1208), (3141, 1034), (4409, 1527)),
-        _r("lateral+bias", "I_lateral+I_bias", 97.34, (5549, 404), (9685, 998), (3464, 151), (4851, 907)),
+    rows=(  # labelled by ilcsan.config.intra_label, the one place a variant's name in the paper is declared
+        #                                Ant          HalfCheetah    Hopper        Walker2d
+        _intra("none", 94.95, (5433, 619), (9932, 1238), (3249, 1082), (4668, 702)),
+        _intra("self", 97.40, (5245, 769), (10168, 1465), (3512, 146), (4843, 757)),
+        _intra("lateral", 95.55, (5389, 747), (9384, 987), (3521, 145), (4702, 728)),
+        _intra("bias", 90.56, (4935, 862), (9906, 1208), (3141, 1034), (4409, 1527)),
+        _intra("lateral+bias", 97.34, (5549, 404), (9685, 998), (3464, 151), (4851, 907)),
         # Printed APR 85.76 %; the printed means give 85.78 % (see the module docstring).
-        _r("self+bias", "I_self+I_bias", 85.76, (5114, 729), (8431, 1410), (2645, 1439), (4699, 504)),
-        _r("self+lateral", "I_self+I_lateral", 93.90, (5067, 727), (9117, 2923), (3525, 133), (4788, 745)),
-        _r("intra", "I_intra", 98.61, (5653, 533), (10376, 1163), (3583, 86), (4511, 462)),
+        _intra("self+bias", 85.76, (5114, 729), (8431, 1410), (2645, 1439), (4699, 504)),
+        _intra("self+lateral", 93.90, (5067, 727), (9117, 2923), (3525, 133), (4788, 745)),
+        _intra("intra", 98.61, (5653, 533), (10376, 1163), (3583, 86), (4511, 462)),
     ),
 )
 

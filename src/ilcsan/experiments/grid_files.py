@@ -1,19 +1,8 @@
-"""The paper's tables as grids of runs (tasks × seeds × rows), as data; and user grids from TOML.
+"""A user's grid of runs from a TOML file: read, and every key and value checked, into a :class:`TableSpec`.
 
-Each reward table of the paper (``tab:perf``, ``tab:decode``, ``tab:dec_intra``, ``tab:intra``,
-``tab:layer``) is a :class:`TableSpec`: its tasks, its rows, and the paper's protocol (10 seeds,
-1 000 000 steps, an evaluation of 10 deterministic episodes every 10 000 steps, Section V-A). A row
-is an actor preset plus overrides of the actor's switches; ``ilcsan reproduce`` runs every
-(task, row, seed) and writes ``OUT/<table>/<task>/<row-slug>/seed<k>/``. Row slugs are the keys of
-:mod:`ilcsan.analysis.paper`, so the report puts the published number beside ours.
-
-Actor switches (fields of the actor configuration): ``preset`` ∈ :data:`~ilcsan.config.PRESET_NAMES`; overrides
-``encoder`` ∈ :data:`ENCODERS`, ``decoder`` ∈ :data:`DECODERS`, ``alpha_v_li`` (float),
-``intra`` ∈ :data:`INTRA_VARIANTS`, ``hidden_layers`` (1-4), ``hidden_width`` (≥ 1).
-``alpha_v_li`` is the decay factor α_V^LI of the decoder's LI neuron, in [0, 1].
-The ``ilc-san`` preset is E_pop_det, full intra-layer connections, D_last with α_V^LI = 1.0, 2×256;
-``popsan`` is E_pop_det, no intra-layer connections, D_fr; ``mdc-san`` is E_pop with dynamic neurons
-and D_fr; ``akl`` is Akl et al. 2023; ``dan`` is TD3's deep actor (MLP).
+A grid file has the shape of the paper's tables as grids (:mod:`ilcsan.paper.layouts`): tasks × rows × seeds
+with the evaluation protocol, each row an actor preset plus overrides of the actor's switches (the fields of
+:class:`~ilcsan.config.ActorConfig`) and, optionally, its TD3 training method. :func:`load_grid` documents the format.
 """
 
 from __future__ import annotations
@@ -22,22 +11,21 @@ import math
 import re
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..analysis.paper import FIRST_FOUR, PAPER_TASKS
 from ..config import (
     DECODERS,
     ENCODERS,
     INTRA_TIMINGS,
     INTRA_VARIANTS,
     PRESET_NAMES,
-    RunConfig,
     TD3Config,
     check_settings,
 )
 from ..errors import UserError
+from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
+from ..paper.published import PAPER_TASK_NAMES
 
 OVERRIDE_KEYS: tuple[str, ...] = (
     "encoder", "decoder", "alpha_v_li", "intra", "intra_timing", "hidden_layers", "hidden_width",
@@ -45,172 +33,9 @@ OVERRIDE_KEYS: tuple[str, ...] = (
 DAN_OVERRIDE_KEYS: tuple[str, ...] = ("hidden_layers", "hidden_width")
 """The only switches that mean something for the deep actor (DAN)."""
 
-SEEDS = 10
-"""Seeds per cell in the paper (Section V-A); the protocol's budget and evaluation are the run defaults."""
-STEPS, EVAL_EVERY, EVAL_EPISODES = RunConfig.steps, RunConfig.eval_every, RunConfig.eval_episodes
-
 _SLUG = re.compile(r"^[a-z0-9][a-z0-9._+-]*$")
 _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
 
-
-@dataclass(frozen=True)
-class RowSpec:
-    """One row of a table: an actor (preset + switch overrides) and how the paper labels it.
-
-    ``runnable`` is False for a row that only carries the paper's numbers (AC-BCQ: no code exists);
-    such a row has ``preset`` None.
-    """
-
-    slug: str
-    label: str
-    preset: str | None
-    overrides: Mapping[str, Any] = field(default_factory=dict, hash=False)
-    runnable: bool = True
-    td3: Mapping[str, Any] = field(default_factory=dict, hash=False)
-    """TD3 settings of this row (training methods such as ``target_actor``), over the grid's own."""
-    published: tuple[str, str] | None = None
-    """In a grid that is not a table of the paper: the paper's (table, row) that ran this same actor and method,
-    whose published cells a report shows beside this row's (its APR, over other tasks, is not shown)."""
-
-    def actor(self) -> dict[str, Any]:
-        """The actor switches of this row: ``{"preset": ..., **overrides}``."""
-        if self.preset is None:
-            raise ValueError(f"row {self.slug!r} has no actor (it carries the paper's numbers only)")
-        return {"preset": self.preset, **self.overrides}
-
-
-@dataclass(frozen=True)
-class TableSpec:
-    """A table as a grid of runs: tasks × rows × seeds, with the evaluation protocol."""
-
-    name: str
-    caption: str
-    tasks: tuple[str, ...]
-    rows: tuple[RowSpec, ...]
-    seeds: int = SEEDS
-    steps: int = STEPS
-    eval_every: int = EVAL_EVERY
-    eval_episodes: int = EVAL_EPISODES
-
-    def row(self, slug: str) -> RowSpec:
-        """The row with this slug; KeyError if none."""
-        for row in self.rows:
-            if row.slug == slug:
-                return row
-        raise KeyError(f"table {self.name!r} has no row {slug!r}")
-
-    @property
-    def runnable_rows(self) -> tuple[RowSpec, ...]:
-        return tuple(row for row in self.rows if row.runnable)
-
-    def runs(self) -> list[tuple[str, RowSpec, int]]:
-        """Every (task, row, seed) of the grid that can run, seeds numbered from 0."""
-        return [(task, row, seed) for task in self.tasks for row in self.runnable_rows
-                for seed in range(self.seeds)]
-
-
-def _row(slug: str, label: str, preset: str | None, runnable: bool = True, **overrides: Any) -> RowSpec:
-    return RowSpec(slug, label, preset, dict(overrides), runnable)
-
-
-PERF = TableSpec(
-    name="perf",
-    caption="Max average rewards over 10 random seeds for DAN, ILC-SAN and other SANs",
-    tasks=PAPER_TASKS,
-    rows=(
-        _row("dan", "DAN", "dan"),
-        _row("popsan", "PopSAN", "popsan"),
-        _row("mdc-san", "MDC-SAN", "mdc-san"),
-        _row("akl", "Akl et al.", "akl"),
-        _row("ac-bcq", "AC-BCQ", None, runnable=False),
-        _row("ilc-san-layer", "ILC-SAN (E_layer)", "ilc-san", encoder="layer"),
-        _row("ilc-san-pop", "ILC-SAN (E_pop)", "ilc-san", encoder="pop"),
-        _row("ilc-san-pop-det", "ILC-SAN (E_pop_det)", "ilc-san", encoder="pop-det"),
-    ),
-)
-
-
-def _decoder_rows(decoders: tuple[str, ...], intra: str) -> tuple[RowSpec, ...]:
-    return tuple(
-        _row(f"{decoder}-{alpha}", f"D_{decoder} (α_V={alpha})", "ilc-san",
-             decoder=decoder, alpha_v_li=alpha, intra=intra)
-        for decoder in decoders for alpha in (1.0, 0.75, 0.5)
-    )
-
-
-DECODE = TableSpec(
-    name="decode",
-    caption="Max average rewards over 10 random seeds for various decoding methods without "
-    "intra-layer connections",
-    tasks=FIRST_FOUR,
-    rows=(_row("fr", "D_fr", "popsan"), *_decoder_rows(("last", "max", "mean"), intra="none")),
-)
-
-DEC_INTRA = TableSpec(
-    name="dec_intra",
-    caption="Max average rewards over 10 random seeds for different decoding methods with "
-    "intra-layer connections",
-    tasks=FIRST_FOUR,
-    rows=(_row("fr", "D_fr", "ilc-san", decoder="fr"), *_decoder_rows(("last",), intra="intra")),
-)
-
-_INTRA_LABELS = {
-    "none": "No I_intra", "self": "I_self", "lateral": "I_lateral", "bias": "I_bias",
-    "lateral+bias": "I_lateral+I_bias", "self+bias": "I_self+I_bias",
-    "self+lateral": "I_self+I_lateral", "intra": "I_intra",
-}
-
-INTRA = TableSpec(
-    name="intra",
-    caption="Max average rewards over 10 random seeds for ablation study on intra-layer connections",
-    tasks=FIRST_FOUR,
-    rows=tuple(_row(variant, label, "ilc-san", intra=variant) for variant, label in _INTRA_LABELS.items()),
-)
-
-LAYER = TableSpec(
-    name="layer",
-    caption="Max average rewards over 10 random seeds for comparative experiments on the backbone SNN",
-    tasks=FIRST_FOUR,
-    rows=tuple(_row(f"hidden-{n}", f"N_hidden={n}", "ilc-san", hidden_layers=n) for n in range(1, 5)),
-)
-
-BEYOND = TableSpec(
-    name="beyond",
-    caption="Beyond the paper: ILC-SAN with the training methods that followed it, against DAN",
-    tasks=("Hopper",),
-    rows=(
-        RowSpec("ilc-san", "ILC-SAN", "ilc-san", published=("perf", "ilc-san-pop-det")),
-        RowSpec("ilc-san+proxy", "ILC-SAN + Proxy Target", "ilc-san", {}, True, {"target_actor": "proxy"}),
-        RowSpec("ilc-san+noisy", "ILC-SAN + NoisySAN", "ilc-san", {}, True, {"exploration": "noisy"}),
-        RowSpec("dan", "DAN", "dan", published=("perf", "dan")),
-    ),
-    seeds=5,
-    steps=200_000,
-)
-"""Our grid (not a table of the paper): Proxy Target (Xu et al., NeurIPS 2025) and NoisySAN exploration (Chen et
-al. 2024) against plain ILC-SAN and DAN on Hopper, 5 seeds × 200 000 steps by default."""
-
-FIDELITY = TableSpec(
-    name="fidelity",
-    caption="Hopper's collapsed start: the intra-layer timing of Algorithm 1 against the authors' code's",
-    tasks=("Hopper",),
-    rows=(
-        RowSpec("paper", "ILC-SAN, intra timing of Algorithm 1", "ilc-san", {"intra_timing": "paper"}),
-        RowSpec("authors", "ILC-SAN, intra timing of the authors' code", "ilc-san", {"intra_timing": "authors"}),
-    ),
-    seeds=16,
-    steps=50_000,
-)
-"""Our grid (not a table of the paper): how many Hopper seeds stay in the collapsed start under each intra-layer
-timing (``--intra-timing``), 16 seeds × 50 000 steps by default (docs/fidelity-hopper/)."""
-
-TABLES: dict[str, TableSpec] = {spec.name: spec
-                                for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND, FIDELITY)}
-"""The paper's five reward tables as grids, by name, and our ``beyond`` and ``fidelity`` grids."""
-
-
-# ----------------------------------------------------------------------------------------------
-# User grids from TOML
 
 _TOP_KEYS = ("name", "caption", "tasks", "rows", "seeds", "steps", "eval_every", "eval_episodes")
 _ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
@@ -221,7 +46,7 @@ ROW_TD3_KEYS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr",
 
 def is_task_name(task: str) -> bool:
     """True for one of the paper's short names or anything shaped like a Gymnasium id (``Name-vN``)."""
-    return task in PAPER_TASKS or bool(_GYM_ID.match(task))
+    return task in PAPER_TASK_NAMES or bool(_GYM_ID.match(task))
 
 
 def load_grid(path: str | Path) -> TableSpec:
@@ -320,7 +145,7 @@ def _tasks(value: Any, source: str) -> tuple[str, ...]:
         raise UserError(f"{source}: tasks must be a non-empty list of task names, got {value!r}")
     for task in value:
         if not isinstance(task, str) or not is_task_name(task):
-            raise UserError(f"{source}: unknown task {task!r}; use one of {', '.join(PAPER_TASKS)} "
+            raise UserError(f"{source}: unknown task {task!r}; use one of {', '.join(PAPER_TASK_NAMES)} "
                             "or a Gymnasium id such as 'Pendulum-v1'")
     if len(set(value)) != len(value):
         raise UserError(f"{source}: tasks are listed twice: {value!r}")
