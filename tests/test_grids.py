@@ -25,7 +25,7 @@ PAPER_TABLES = list(paper.REWARD_TABLES)
 
 def test_the_five_tables_with_the_papers_protocol() -> None:
     assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer", "beyond", "fidelity"]
-    assert PAPER_TABLES == list(TABLES)[:5]
+    assert list(TABLES)[:5] == PAPER_TABLES
     assert TABLES["perf"].tasks == paper.PAPER_TASK_NAMES
     assert len(TABLES["perf"].tasks) == 8
     for name in ("decode", "dec_intra", "intra", "layer"):

@@ -12,22 +12,22 @@ from ilcsan.cli import main
 from ilcsan.errors import UserError
 from ilcsan.paper import published as paper
 from ilcsan.rl import tasks
-from ilcsan.rl.tasks import PAPER_TASKS, make_env
+from ilcsan.rl.tasks import TASK_SPECS, make_env
 
 
 def test_paper_tasks_follow_the_papers_table():
-    assert tuple(PAPER_TASKS) == paper.PAPER_TASK_NAMES
-    for name, spec in PAPER_TASKS.items():
+    assert tuple(TASK_SPECS) == paper.PAPER_TASK_NAMES
+    for name, spec in TASK_SPECS.items():
         assert (spec.paper_id, spec.state_dim, spec.action_dim) == (paper.TASKS[name].paper_id, paper.TASKS[name].n,
                                                                     paper.TASKS[name].m)
 
 
-@pytest.mark.parametrize("name", list(PAPER_TASKS))
+@pytest.mark.parametrize("name", list(TASK_SPECS))
 def test_paper_tasks_have_the_papers_sizes(name):
     env = make_env(name, seed=0)
     try:
-        assert env.observation_space.shape == (PAPER_TASKS[name].state_dim,)
-        assert env.action_space.shape == (PAPER_TASKS[name].action_dim,)
+        assert env.observation_space.shape == (TASK_SPECS[name].state_dim,)
+        assert env.action_space.shape == (TASK_SPECS[name].action_dim,)
     finally:
         env.close()
 

@@ -66,7 +66,7 @@ import numpy as np
 
 from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig
 from ..errors import UserError
-from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES
+from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES, TASKS
 
 GROUP_FC = "Group FC"
 INTRA_FC = "Intra FC"
@@ -303,13 +303,11 @@ def analytic_report(preset: str, task: str, state_dim: int, action_dim: int,
 
 def paper_report(preset: str, task: str) -> EnergyReport:
     """The paper's Table fr rates for ``preset`` (popsan, ilc-san; dan needs none) on a paper task."""
-    from ..rl.tasks import PAPER_TASKS
-
-    spec = PAPER_TASKS[task]
+    dims = TASKS[task]
     if preset == "dan":
-        return analytic_report("dan", task, spec.state_dim, spec.action_dim, source="paper")
+        return analytic_report("dan", task, dims.n, dims.m, source="paper")
     row = FIRING_RATES[preset][task]
     rates = {"FC1": row.fc1, "FC2": row.fc2, "FC3": row.fc3, GROUP_FC: row.group_fc}
     if row.intra_fc is not None:
         rates[INTRA_FC] = row.intra_fc
-    return analytic_report(preset, task, spec.state_dim, spec.action_dim, rates, source="paper")
+    return analytic_report(preset, task, dims.n, dims.m, rates, source="paper")

@@ -20,6 +20,7 @@ from typing import Any, Literal
 from ..config import RunConfig
 from ..errors import TrainingDiverged, UserError
 from ..rl.memory import physical_memory, replay_bytes
+from ..rl.tasks import TASK_SPECS, make_env
 from ..runs.checkpoint import RESUME_SETTINGS
 from ..runs.directory import CONFIG, RunDirectory
 from .grid import Grid, GridRun, run_key, task_folder
@@ -177,9 +178,7 @@ def balance_jobs(jobs: Sequence[Job], slots: int, max_seeds: int | None = None) 
 # ----------------------------------------------------------------------------------------- memory
 def seed_replay_bytes(task: str, config: RunConfig) -> int:
     """Memory of one seed's replay buffer when full: capacity × (2N + M + 2) float32 values."""
-    from ..rl.tasks import PAPER_TASKS, make_env
-
-    spec = PAPER_TASKS.get(task)
+    spec = TASK_SPECS.get(task)
     if spec is not None:
         state_dim, action_dim = spec.state_dim, spec.action_dim
     else:

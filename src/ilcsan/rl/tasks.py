@@ -63,23 +63,23 @@ def _spec(name: str) -> TaskSpec:
                     dict(ours.get("kwargs", {})), ours.get("note", ""))
 
 
-PAPER_TASKS: dict[str, TaskSpec] = {name: _spec(name) for name in PAPER_TASK_NAMES}
+TASK_SPECS: dict[str, TaskSpec] = {name: _spec(name) for name in PAPER_TASK_NAMES}
 """The paper's tasks by short name, in the paper's order."""
 
-_LOWER_NAMES = {name.lower(): name for name in PAPER_TASKS}
+_LOWER_NAMES = {name.lower(): name for name in TASK_SPECS}
 
 
 def resolve_task(name: str) -> tuple[str, dict[str, Any]]:
     """Short name (case-insensitive) or Gymnasium id → (gym id, keyword arguments)."""
     short = _LOWER_NAMES.get(name.lower())
     if short is not None:
-        spec = PAPER_TASKS[short]
+        spec = TASK_SPECS[short]
         return spec.gym_id, dict(spec.kwargs)
     import gymnasium as gym
 
     if name not in gym.registry:
         raise UserError(
-            f"unknown task {name!r}: use a paper task ({', '.join(PAPER_TASKS)}) or a registered "
+            f"unknown task {name!r}: use a paper task ({', '.join(TASK_SPECS)}) or a registered "
             "Gymnasium id such as 'Pendulum-v1' (see `ilcsan tasks`)"
         )
     return name, {}
@@ -133,8 +133,8 @@ def _newest_other_version(gym_id: str) -> str | None:
 def _fix_for(name: str, gym_id: str, error: Exception) -> str:
     """What the user can do about ``error`` raised while building ``gym_id``."""
     paper_name = _LOWER_NAMES.get(gym_id.rpartition("-v")[0].lower())
-    if paper_name is not None and gym_id != PAPER_TASKS[paper_name].gym_id:
-        return f"use the paper's task as `--task {paper_name}` ({PAPER_TASKS[paper_name].gym_id} here)"
+    if paper_name is not None and gym_id != TASK_SPECS[paper_name].gym_id:
+        return f"use the paper's task as `--task {paper_name}` ({TASK_SPECS[paper_name].gym_id} here)"
     if isinstance(error, ModuleNotFoundError) and error.name:
         return f"install the missing package ({error.name}) into this environment"
     if isinstance(error, TypeError):
@@ -216,7 +216,7 @@ def describe_tasks() -> list[dict[str, Any]]:
     return [
         {"task": spec.name, "gym_id": spec.gym_id, "paper_id": spec.paper_id, "N": spec.state_dim,
          "M": spec.action_dim, "kwargs": spec.kwargs, "note": spec.note}
-        for spec in PAPER_TASKS.values()
+        for spec in TASK_SPECS.values()
     ]
 
 
