@@ -16,9 +16,10 @@ import pytest
 from ilcsan.analysis.collect import collect_runs, scan_runs
 from ilcsan.analysis.curves import curve, plot_curves, smooth, smoothing_window
 from ilcsan.analysis.render import format_stat, render_csv, render_latex, render_markdown
-from ilcsan.analysis.report import report_layout, write_report
-from ilcsan.analysis.tables import build_table, report_tables
+from ilcsan.analysis.report import write_report
+from ilcsan.analysis.reward_tables import build_table, report_tables
 from ilcsan.cli.grid_commands import cmd_report
+from ilcsan.experiments.grid import report_layout
 from ilcsan.paper.layouts import TABLES
 
 HEADER = "step,eval_return_mean,eval_return_std,eval_length_mean,wall_seconds,steps_per_second"

@@ -11,7 +11,7 @@ import numpy as np
 from ..files import atomic_write_file
 from ..paper.layouts import TableSpec
 from .collect import RunRecord
-from .tables import TableResult, build_table
+from .reward_tables import TableResult, build_table
 
 SMOOTHING_WINDOW = 5
 """Learning curves are smoothed by a trailing moving average over this many evaluations."""

@@ -64,9 +64,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig
+from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig, actor_config
 from ..errors import UserError
 from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES, TASKS
+from ..rl import evaluation
 
 GROUP_FC = "Group FC"
 INTRA_FC = "Intra FC"
@@ -257,8 +258,6 @@ def measure_firing_rates(policy, observations: np.ndarray) -> MeasuredRates:
 def firing_rates(policy, task: str | None = None, episodes: int = 1, seed: int = 0) -> MeasuredRates:
     """Table fr: run the deterministic policy for ``episodes`` episodes at batch 1 and average the firing
     rate of every neuronal layer feeding a synaptic layer over all steps (the paper: one episode)."""
-    from ..rl.evaluation import run_episodes
-
     if episodes < 1:
         raise UserError(f"--episodes must be at least 1, got {episodes}")
     tally = _tally_for(policy)
@@ -268,7 +267,7 @@ def firing_rates(policy, task: str | None = None, episodes: int = 1, seed: int =
         tally.add(output)
         return output.action[0, 0].numpy()
 
-    run_episodes(act, task or policy.task, episodes, seed)
+    evaluation.run_episodes(act, task or policy.task, episodes, seed)
     return tally.rates()
 
 
@@ -293,8 +292,6 @@ def measure_energy(policy, episodes: int = 1, seed: int = 0, task: str | None = 
 def analytic_report(preset: str, task: str, state_dim: int, action_dim: int,
                     rates: Mapping[str, float] | None = None, source: str = "") -> EnergyReport:
     """A report from given rates (or none for DAN) for a preset's paper configuration."""
-    from ..config import actor_config
-
     config = actor_config(preset)
     layers = synaptic_layers(config, state_dim, action_dim)
     counts = count_operations(layers, dict(rates or {}), config.timesteps)

@@ -16,7 +16,7 @@ from ..paper.layouts import STEPS
 from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
 from .collect import SkippedRun
 from .followups import FOLLOW_UPS, NOT_FOUND
-from .tables import Cell, RowResult, TableResult
+from .reward_tables import Cell, RowResult, TableResult
 
 DIAGNOSTIC_HEADERS = {"saturated_actions": "Saturated", "frozen_output_neurons": "Frozen outputs",
                       "surrogate_active": "Surrogate window", "mean_abs_preaction": "Mean abs(O)"}

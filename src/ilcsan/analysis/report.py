@@ -5,7 +5,7 @@
 
 * :mod:`.collect`: find the runs below a folder and read them (damaged runs and duplicates are listed
   with the reason, never fatal);
-* :mod:`.tables`: group them into a table's cells (mean ± std over seeds of each run's max average
+* :mod:`.reward_tables`: group them into a table's cells (mean ± std over seeds of each run's max average
   reward) and rows (APR against DAN), with the paper's numbers beside ours;
 * :mod:`.render`: the tables as Markdown, LaTeX and CSV;
 * :mod:`.curves`: the learning curves as a PNG.
@@ -15,17 +15,14 @@ This module ties them together and names the public API of the report.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 
-from ..errors import UserError
-from ..experiments.grid_files import load_grid
 from ..files import atomic_write_text
-from ..paper.layouts import TABLES, TableSpec
+from ..paper.layouts import TableSpec
 from .collect import RunRecord, RunScan, SkippedRun, collect_runs, read_run, scan_runs
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
 from .render import format_stat, latex_escape, render_csv, render_latex, render_markdown
-from .tables import Cell, RowResult, TableResult, build_table, report_tables
+from .reward_tables import Cell, RowResult, TableResult, build_table, report_tables
 
 REPORT_FILES: dict[str, str] = {
     "markdown": "report.md",
@@ -54,19 +51,8 @@ def write_report(directory: str | Path, out_dir: str | Path | None = None,
     return paths
 
 
-def report_layout(table: str | None, runs: Sequence[RunRecord] = ()) -> str | TableSpec | None:
-    """The layout ``ilcsan report --table`` asks for: a paper table's name, a tag found among the runs,
-    or a TOML grid file (None: every table found)."""
-    if table is None or table in TABLES or any(run.table == table for run in runs):
-        return table
-    if table.endswith(".toml"):
-        return load_grid(table)
-    tags = sorted({run.table for run in runs if run.table and run.table not in TABLES})
-    raise UserError(f"no table {table!r}: use one of {', '.join([*TABLES, *tags])} or a grid's .toml file")
-
-
 __all__ = [
-    "write_report", "report_layout", "REPORT_FILES",
+    "write_report", "REPORT_FILES",
     "RunRecord", "RunScan", "SkippedRun", "scan_runs", "collect_runs", "read_run",
     "Cell", "RowResult", "TableResult", "build_table", "report_tables",
     "format_stat", "latex_escape", "render_markdown", "render_latex", "render_csv",

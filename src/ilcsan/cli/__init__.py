@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 
+from .. import __version__
 from ..config import RunConfig, TD3Config
 from ..errors import TrainingDiverged, UserError
 from . import commands, grid_commands
@@ -33,8 +34,6 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The ``ilcsan`` parser: one sub-command per ``_add_*_command`` below."""
     parser = _Parser(prog="ilcsan", description="Fully spiking actor networks (ILC-SAN) for continuous control.")
-    from .. import __version__
-
     parser.add_argument("--version", action="version", version=f"ilcsan {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for add_command in (_add_train_command, _add_evaluate_command, _add_export_command, _add_reproduce_command,

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ..config import EXPLORATION_PAPERS, PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, RunConfig, TD3Config, actor_config
 from .options import build_run_config
 
 
@@ -68,8 +69,6 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_actors(args: argparse.Namespace) -> int:
-    from ..config import EXPLORATION_PAPERS, PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, actor_config
-
     if args.json:
         print(json.dumps({name: actor_config(name).to_dict() for name in PRESET_SUMMARIES}, indent=2))
         return 0
@@ -112,8 +111,6 @@ DEMO_EVALUATIONS = 12
 
 def demo_config(task: str, steps: int, seed: int, threads: int | None):
     """The demo's run: ILC-SAN, evaluated every ``steps / 12`` steps on 5 episodes, updates from step 1000."""
-    from ..config import RunConfig, TD3Config, actor_config
-
     return RunConfig(task=task, seeds=(seed,), steps=steps, eval_every=max(1, steps // DEMO_EVALUATIONS),
                      eval_episodes=5, actor=actor_config("ilc-san"), td3=TD3Config(start_steps=1000, update_after=1000),
                      threads=threads)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import dataclasses
 import json
 
+from .. import load
 from ..errors import UserError
+from ..paper.layouts import TABLES
 from .options import parse_seeds
 
 
@@ -33,7 +35,6 @@ def cmd_reproduce(args) -> int:
     from ..experiments.coordinator import run_grid
     from ..experiments.estimate import list_tables
     from ..experiments.grid import expand_grid, table_to_reproduce
-    from ..paper.layouts import TABLES
 
     if args.list:
         specs = [table_to_reproduce(args.table)[0]] if args.table else None
@@ -62,7 +63,8 @@ def cmd_reproduce(args) -> int:
 def cmd_report(args) -> int:
     """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     from ..analysis.collect import scan_runs
-    from ..analysis.report import report_layout, write_report
+    from ..analysis.report import write_report
+    from ..experiments.grid import report_layout
 
     scan = scan_runs(args.directory)
     table = report_layout(args.table, scan.runs)
@@ -80,7 +82,6 @@ def cmd_report(args) -> int:
 
 def cmd_energy(args) -> int:
     """``ilcsan energy RUN [RUN...] --episodes 1 --seed 0 [--json]``."""
-    from .. import load
     from ..analysis.energy import COSTS, measure_energy
     from ..analysis.energy_tables import average_reports, energy_table, format_report
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..analysis.report import write_report
 from .backends import Backend, LocalBackend, make_backend
 from .grid import Grid, GridRun
 from .jobs import Job, JobOutcome, RunState, balance_jobs, format_seeds, group_jobs, max_seeds_per_job, run_state
@@ -188,8 +189,6 @@ def _summarise(grid: Grid, summary: dict[str, Any], finished: int, started: floa
     """Write the report (unless told not to), list the failed jobs, and return the summary."""
     report = None
     if write:
-        from ..analysis.report import write_report
-
         report = write_report(grid.out, grid.root, grid.report_table)
         log(f"report: {report['markdown']} (also .tex, .csv) · learning curves: {report['curves']}")
     for name, reason in summary["failed"]:

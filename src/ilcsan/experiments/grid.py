@@ -15,10 +15,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..analysis.collect import RunRecord
 from ..config import RunConfig, TD3Config, actor_config
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
+from ..rl.tasks import make_env, resolve_task
 from .grid_files import load_grid
 
 
@@ -97,6 +99,17 @@ def table_to_reproduce(name: str) -> tuple[TableSpec, str | TableSpec]:
                     "see `ilcsan reproduce --list`")
 
 
+def report_layout(table: str | None, runs: Sequence[RunRecord] = ()) -> str | TableSpec | None:
+    """The layout ``ilcsan report --table`` asks for: a paper table's name, a tag found among the runs,
+    or a TOML grid file (None: every table found)."""
+    if table is None or table in TABLES or any(run.table == table for run in runs):
+        return table
+    if table.endswith(".toml"):
+        return load_grid(table)
+    tags = sorted({run.table for run in runs if run.table and run.table not in TABLES})
+    raise UserError(f"no table {table!r}: use one of {', '.join([*TABLES, *tags])} or a grid's .toml file")
+
+
 def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = None,
                 report_table: str | TableSpec | None = None) -> Grid:
     """Every run of ``spec`` as shrunk by ``options``, placed below ``out/<table>``."""
@@ -160,8 +173,6 @@ def select_tasks(wanted: Sequence[str] | None, spec: TableSpec) -> tuple[str, ..
 def runnable_task(name: str) -> str:
     """A task's name as a grid writes it: a paper task's short name (any case), or a Gymnasium id that is
     registered and has a Box action space (checked by building it once); UserError otherwise."""
-    from ..rl.tasks import make_env, resolve_task
-
     short = next((task for task in PAPER_TASK_NAMES if task.lower() == name.lower()), None)
     if short is not None:
         return short

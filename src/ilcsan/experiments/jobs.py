@@ -21,6 +21,7 @@ from ..config import RunConfig
 from ..errors import TrainingDiverged, UserError
 from ..rl.memory import physical_memory, replay_bytes
 from ..rl.tasks import TASK_SPECS, make_env
+from ..rl.training import train
 from ..runs.checkpoint import RESUME_SETTINGS
 from ..runs.directory import CONFIG, RunDirectory
 from .grid import Grid, GridRun, run_key, task_folder
@@ -217,8 +218,6 @@ def run_job(job: Job) -> JobOutcome:
     The seeds' states are read again here, so a retried job (Ray, or a replaced local worker) continues
     where the previous attempt stopped, even when that attempt left the seeds at different checkpoints.
     """
-    from ..rl.training import train
-
     started = time.perf_counter()
     job.log_file.parent.mkdir(parents=True, exist_ok=True)
     with open(job.log_file, "a", encoding="utf-8") as stream:
