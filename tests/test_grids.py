@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from ilcsan import config
 from ilcsan.errors import UserError
 from ilcsan.experiments import grid_files as grids
 from ilcsan.experiments.grid_files import load_grid
@@ -85,11 +86,11 @@ def test_every_row_uses_known_switch_values(name: str) -> None:
         if not row.runnable:
             assert row.preset is None
             continue
-        assert row.preset in grids.PRESET_NAMES
+        assert row.preset in config.PRESET_NAMES
         assert set(row.overrides) <= set(grids.OVERRIDE_KEYS)
-        assert row.overrides.get("encoder", "pop-det") in grids.ENCODERS
-        assert row.overrides.get("decoder", "last") in grids.DECODERS
-        assert row.overrides.get("intra", "intra") in grids.INTRA_VARIANTS
+        assert row.overrides.get("encoder", "pop-det") in config.ENCODERS
+        assert row.overrides.get("decoder", "last") in config.DECODERS
+        assert row.overrides.get("intra", "intra") in config.INTRA_VARIANTS
 
 
 def test_perf_rows() -> None:
@@ -129,10 +130,9 @@ def test_dec_intra_intra_and_layer_rows() -> None:
 
 def test_switch_names_agree_with_the_actor_config() -> None:
     """The grid's vocabulary is the actor configuration's: one declaration, and every row builds a config."""
-    config = pytest.importorskip("ilcsan.config")
-    assert tuple(config.PRESETS) == grids.PRESET_NAMES
-    assert grids.ENCODERS is config.ENCODERS and grids.DECODERS is config.DECODERS
-    assert grids.INTRA_VARIANTS is config.INTRA_VARIANTS and tuple(config.INTRA_MASKS) == config.INTRA_VARIANTS
+    settings = {item.name for item in config.described_fields(config.ActorConfig)}
+    assert set(grids.OVERRIDE_KEYS) == settings - {"preset", "hidden"} | {"hidden_layers", "hidden_width"}
+    assert grids.DAN_OVERRIDE_KEYS == ("network", "hidden_layers", "hidden_width", "learning_rate")
     for spec in TABLES.values():
         for row in spec.runnable_rows:
             config.actor_config(**row.actor())  # raises on a switch the actor does not know
@@ -189,11 +189,11 @@ def _replace(old: str, new: str) -> str:
         (EXAMPLE + "\nseed = 3\n", "unknown key 'seed'"),
         (_replace('label = "ILC-SAN"', 'lable = "ILC-SAN"'), "unknown key 'lable'"),
         (_replace("intra = \"none\",", "intra_layer = \"none\","), "unknown key 'intra_layer'"),
-        (_replace('intra = "none"', 'intra = "no"'), "intra = 'no' is not one of"),
-        (_replace('decoder = "mean"', 'decoder = "median"'), "decoder = 'median' is not one of"),
-        (_replace("alpha_v_li = 0.75", "alpha_v_li = 1.5"), "alpha_v_li is a decay factor in [0, 1]"),
-        (_replace("alpha_v_li = 0.75", "alpha_v_li = true"), "alpha_v_li is a decay factor"),
-        (_replace("hidden_layers = 3", "hidden_layers = 5"), "hidden_layers must be 1 to 4"),
+        (_replace('intra = "none"', 'intra = "no"'), "--intra 'no' is not one of"),
+        (_replace('decoder = "mean"', 'decoder = "median"'), "--decoder 'median' is not one of"),
+        (_replace("alpha_v_li = 0.75", "alpha_v_li = 1.5"), "--alpha-v-li is a decay factor in [0, 1]"),
+        (_replace("alpha_v_li = 0.75", "alpha_v_li = true"), "alpha_v_li must be a number"),
+        (_replace("hidden_layers = 3", "hidden_layers = 5"), "--hidden-layers must be 1 to 4"),
         (_replace("hidden_width = 400", "hidden_width = 400.0"), "hidden_width must be an integer"),
         (_replace('"Pendulum-v1"', '"Hoppr"'), "unknown task 'Hoppr'"),
         (_replace('"Pendulum-v1"', '"Hopper"'), "tasks are listed twice"),
@@ -201,7 +201,7 @@ def _replace(old: str, new: str) -> str:
         (_replace("seeds = 3", 'seeds = "3"'), "seeds must be a positive integer"),
         (_replace('name = "intra-small"', 'name = "intra"'), "reserved for the paper's table"),
         (_replace('name = "intra-small"', 'name = "Intra Small"'), "must be a lowercase slug"),
-        (_replace('preset = "dan"', 'preset = "snn"'), "unknown preset 'snn'"),
+        (_replace('preset = "dan"', 'preset = "snn"'), "unknown actor preset 'snn'"),
         (_replace('overrides = { hidden_width = 400, hidden_layers = 3 }', 'overrides = { intra = "self" }'),
          "the deep actor (preset 'dan') has no spiking switch 'intra'"),
         (_replace('slug = "dan-wide"', 'slug = "ilc-san"'), "the row slug 'ilc-san' is used twice"),
@@ -216,6 +216,25 @@ def test_load_grid_rejects_bad_input_with_one_sentence(tmp_path: Path, text: str
         load_grid(_grid(tmp_path, text))
     assert message in str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def test_a_row_overrides_any_actor_switch_checked_by_the_actor_config() -> None:
+    rows = [{"slug": "t3", "preset": "ilc-san", "overrides": {"timesteps": 3, "v_th": 1, "neuron": "dynamic"}},
+            {"slug": "dan-lr", "preset": "dan", "overrides": {"learning_rate": 3e-4, "hidden_layers": 1}}]
+    spec = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": rows})
+    assert spec.row("t3").overrides == {"timesteps": 3, "v_th": 1.0, "neuron": "dynamic"}
+    assert isinstance(spec.row("t3").overrides["v_th"], float)
+    assert spec.row("dan-lr").actor() == {"preset": "dan", "learning_rate": 3e-4, "hidden_layers": 1}
+    for overrides, message in (({"timesteps": 0}, "--timesteps must be at least 1, got 0"),
+                               ({"timesteps": 2.5}, "timesteps must be an integer"),
+                               ({"v_th": -1}, "--v-th must be a positive number"),
+                               ({"neuron": 3}, "neuron must be a string"),
+                               ({"hidden": [4, 4]}, "unknown key 'hidden'")):
+        with pytest.raises(UserError, match=re.escape(message)):
+            grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
+                                  "rows": [{"slug": "x", "preset": "ilc-san", "overrides": overrides}]})
+    with pytest.raises(UserError, match="preset must be a string"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{"slug": "x", "preset": ["ilc-san"]}]})
 
 
 @pytest.mark.parametrize("task", ["Pendulum-v1", "ALE/Pong-v5", "gymnasium_robotics:FetchReach-v4", "Ant"])

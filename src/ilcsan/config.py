@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
@@ -135,6 +137,14 @@ def flag_of(setting_field: dataclasses.Field) -> str:
 def described_fields(config_class: type) -> list[dataclasses.Field]:
     """The fields of a config class that carry a description (help) in their metadata."""
     return [item for item in dataclasses.fields(config_class) if "help" in item.metadata]
+
+
+def setting_type(config_class: type, setting_field: dataclasses.Field) -> Any:
+    """The Python type of a field's value (``int | None`` → int)."""
+    hint = typing.get_type_hints(config_class)[setting_field.name]
+    if isinstance(hint, types.UnionType):
+        hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
+    return hint
 
 
 def check_settings(config: Any) -> None:

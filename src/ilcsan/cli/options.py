@@ -6,11 +6,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import types
-import typing
 from typing import Any
 
-from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of
+from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of, setting_type
 from ..errors import UserError
 
 # ------------------------------------------------------------------------------------ helpers
@@ -75,17 +73,9 @@ def _finite_float(text: str) -> float:
 
 
 # ------------------------------------------------------------------- switches generated from the config
-def _value_type(config_class: type, setting_field) -> Any:
-    """The Python type of a field (``int | None`` → int)."""
-    hint = typing.get_type_hints(config_class)[setting_field.name]
-    if isinstance(hint, types.UnionType):
-        hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
-    return hint
-
-
 def _argparse_type(config_class: type, setting_field) -> Any:
     """The argparse type of a field: whole numbers of at least its minimum, finite floats, strings as given."""
-    kind = _value_type(config_class, setting_field)
+    kind = setting_type(config_class, setting_field)
     if kind is int:
         return _int_at_least(setting_field.metadata.get("minimum") or 0)
     if kind is float:

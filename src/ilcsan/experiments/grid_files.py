@@ -7,31 +7,39 @@ with the evaluation protocol, each row an actor preset plus overrides of the act
 
 from __future__ import annotations
 
-import math
 import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..config import (
-    DECODERS,
-    ENCODERS,
-    INTRA_TIMINGS,
-    INTRA_VARIANTS,
-    PRESET_NAMES,
-    TD3Config,
-    check_settings,
-)
+from ..config import ActorConfig, TD3Config, actor_config, check_settings, described_fields, setting_type
 from ..errors import UserError
 from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
 
-OVERRIDE_KEYS: tuple[str, ...] = (
-    "encoder", "decoder", "alpha_v_li", "intra", "intra_timing", "hidden_layers", "hidden_width",
-)
-DAN_OVERRIDE_KEYS: tuple[str, ...] = ("hidden_layers", "hidden_width")
-"""The only switches that mean something for the deep actor (DAN)."""
+
+def _actor_switches() -> dict[str, tuple[str, type]]:
+    """Every switch a row's ``overrides`` may set → (the :class:`~ilcsan.config.ActorConfig` field it sets, the type
+    of its value): the actor's settings but the preset (a row's own key), a setting offered as switches replaced by
+    them (``hidden`` by ``hidden_layers`` and ``hidden_width``), as on the command line."""
+    switches: dict[str, tuple[str, type]] = {}
+    for item in described_fields(ActorConfig):
+        for part in item.metadata["switches"]:
+            switches[part.flag.replace("-", "_")] = item.name, type(part.default_of(item.default))
+        if not item.metadata["switches"] and item.name != "preset":
+            switches[item.name] = item.name, setting_type(ActorConfig, item)
+    return switches
+
+
+_SWITCHES = _actor_switches()
+OVERRIDE_KEYS: tuple[str, ...] = tuple(_SWITCHES)
+"""The keys of a row's ``overrides``: the actor's switches, each checked by building the actor."""
+DEEP_ACTOR_SETTINGS: tuple[str, ...] = ("network", "hidden", "learning_rate")
+"""The actor settings the deep actor (DAN, :class:`~ilcsan.snn.actor.DeepActor`) reads; the others are spiking ones."""
+DAN_OVERRIDE_KEYS: tuple[str, ...] = tuple(key for key, (name, _) in _SWITCHES.items() if name in DEEP_ACTOR_SETTINGS)
+"""The only switches that mean something for the deep actor."""
+_TYPE_WORDS = {int: "an integer", float: "a number", str: "a string"}
 
 _SLUG = re.compile(r"^[a-z0-9][a-z0-9._+-]*$")
 _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
@@ -168,52 +176,51 @@ def _row_from_dict(item: Any, where: str) -> RowSpec:
     if "slug" not in item or "preset" not in item:
         raise UserError(f"{where}: every row needs a 'slug' and a 'preset'")
     slug = _slug(item["slug"], f"{where}: slug")
-    preset = item["preset"]
-    if preset not in PRESET_NAMES:
-        raise UserError(f"{where}: unknown preset {preset!r}; choose one of {', '.join(PRESET_NAMES)}")
+    preset = _typed("preset", item["preset"], str, where)
+    try:
+        actor_config(preset)
+    except UserError as error:
+        raise UserError(f"{where}: {error}") from None
     label = item.get("label", slug)
     if not isinstance(label, str) or not label.strip():
         raise UserError(f"{where}: label must be a non-empty string, got {label!r}")
-    overrides = item.get("overrides", {})
-    _check_keys(overrides, OVERRIDE_KEYS, f"{where}: overrides")
-    checked = {key: _override(key, value, f"{where}: overrides") for key, value in overrides.items()}
-    if preset == "dan":
-        bad = sorted(set(checked) - set(DAN_OVERRIDE_KEYS))
-        if bad:
-            raise UserError(f"{where}: the deep actor (preset 'dan') has no spiking switch {bad[0]!r}; "
-                            f"it takes only {', '.join(DAN_OVERRIDE_KEYS)}")
-    return RowSpec(slug=slug, label=label, preset=preset, overrides=checked, td3=_row_td3(item, preset, where))
+    overrides, network = _row_actor(preset, item.get("overrides", {}), f"{where}: overrides")
+    return RowSpec(slug=slug, label=label, preset=preset, overrides=overrides, td3=_row_td3(item, network, where))
 
 
-def _row_td3(item: Mapping[str, Any], preset: str, where: str) -> dict[str, Any]:
+def _row_actor(preset: str, overrides: Any, where: str) -> tuple[dict[str, Any], str]:
+    """A row's overrides, checked by building its actor (:func:`~ilcsan.config.actor_config`, whose errors name the
+    switch), and the actor's network (a deep actor takes only :data:`DAN_OVERRIDE_KEYS`)."""
+    _check_keys(overrides, OVERRIDE_KEYS, where)
+    checked = {key: _typed(key, value, _SWITCHES[key][1], where) for key, value in overrides.items()}
+    try:
+        network = actor_config(preset, **checked).network
+    except UserError as error:
+        raise UserError(f"{where}: {error}") from None
+    spiking = sorted(set(checked) - set(DAN_OVERRIDE_KEYS))
+    if network == "deep" and spiking:
+        raise UserError(f"{where}: the deep actor (preset {preset!r}) has no spiking switch {spiking[0]!r}; "
+                        f"it takes only {', '.join(DAN_OVERRIDE_KEYS)}")
+    return checked, network
+
+
+def _typed(key: str, value: Any, kind: type, where: str) -> Any:
+    """``value`` if it has the type of its setting (an integer for ``int``, also not a boolean; any real number,
+    made a float, for ``float``), else :class:`UserError`; its range and choices are the actor's to check."""
+    accepted = (int, float) if kind is float else kind
+    if not isinstance(value, accepted) or (isinstance(value, bool) and kind is not bool):
+        raise UserError(f"{where}: {key} must be {_TYPE_WORDS.get(kind, kind.__name__)}, got {value!r}")
+    return float(value) if kind is float else value
+
+
+def _row_td3(item: Mapping[str, Any], network: str, where: str) -> dict[str, Any]:
     """A row's ``td3`` table (its training method), checked against :class:`TD3Config`'s declared settings."""
     td3 = item.get("td3", {})
     _check_keys(td3, ROW_TD3_KEYS, f"{where}: td3")
     try:
         settings = TD3Config(**td3)
         check_settings(settings)
-        settings.check_network("deep" if preset == "dan" else "spiking")
+        settings.check_network(network)
     except (UserError, TypeError) as error:
         raise UserError(f"{where}: td3: {error}") from None
     return dict(td3)
-
-
-def _override(key: str, value: Any, where: str) -> Any:
-    choices = {"encoder": ENCODERS, "decoder": DECODERS, "intra": INTRA_VARIANTS,
-               "intra_timing": INTRA_TIMINGS}.get(key)
-    if choices is not None:
-        if value not in choices:
-            raise UserError(f"{where}: {key} = {value!r} is not one of {', '.join(choices)}")
-        return value
-    if key == "alpha_v_li":
-        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        if not ok or not 0.0 <= value <= 1.0:
-            raise UserError(f"{where}: alpha_v_li is a decay factor in [0, 1], got {value!r}")
-        return float(value)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise UserError(f"{where}: {key} must be an integer, got {value!r}")
-    if key == "hidden_layers" and not 1 <= value <= 4:
-        raise UserError(f"{where}: hidden_layers must be 1 to 4, got {value}")
-    if key == "hidden_width" and value < 1:
-        raise UserError(f"{where}: hidden_width must be at least 1, got {value}")
-    return value
