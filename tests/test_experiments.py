@@ -62,9 +62,9 @@ def grid_file(tmp_path: Path) -> Path:
     return path
 
 
-def tiny_grid(tmp_path: Path, **options):
+def tiny_grid(tmp_path: Path, steps: int | None = None, **options):
     spec = load_grid(grid_file(tmp_path))
-    return expand_grid(spec, tmp_path / "out", GridOptions(td3=TINY_TD3, **options))
+    return expand_grid(spec, tmp_path / "out", GridOptions(run={"steps": steps}, td3=TINY_TD3, **options))
 
 
 def metrics(path: Path) -> list[dict[str, str]]:
@@ -94,8 +94,9 @@ def crash_after_first_checkpoint(monkeypatch) -> None:
 
 def test_paper_table_expands_into_tagged_runs(tmp_path):
     grid = expand_grid(TABLES["intra"], tmp_path, GridOptions(seeds=(0, 2), tasks=("hopper", "Ant"),
-                                                             rows=("self", "intra"), steps=5000,
-                                                             td3={"start_steps": 100}, matmul="bf16"))
+                                                             rows=("self", "intra"),
+                                                             run={"steps": 5000, "matmul": "bf16"},
+                                                             td3={"start_steps": 100}))
     assert [run.key for run in grid.runs][:4] == ["Hopper/self/seed0", "Hopper/self/seed2", "Hopper/intra/seed0",
                                                   "Hopper/intra/seed2"]
     assert len(grid.runs) == 2 * 2 * 2 and grid.total_steps == 8 * 5000
@@ -133,6 +134,8 @@ def test_a_tables_rows_run_on_tasks_outside_the_table(tmp_path):
     (GridOptions(tasks=("CartPole-v1",)), "Discrete action space"),
     (GridOptions(rows=("nope",)), "no row 'nope'"),
     (GridOptions(td3={"warmup": 3}), "unknown TD3 setting"),
+    (GridOptions(run={"stesp": 3}), "unknown run setting 'stesp'"),
+    (GridOptions(run={"eval_episodes": 0}), "--eval-episodes must be at least 1"),
 ])
 def test_bad_options_are_one_sentence(tmp_path, options, message):
     with pytest.raises(UserError, match=message):

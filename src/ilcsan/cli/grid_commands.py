@@ -6,6 +6,7 @@ import dataclasses
 import json
 
 from .. import load
+from ..config import RunConfig, TD3Config, described_fields
 from ..errors import UserError
 from ..paper.layouts import TABLES
 from .options import parse_seeds
@@ -19,14 +20,17 @@ def _split(text: str | None) -> tuple[str, ...] | None:
 
 
 def options_from_args(args):
-    """The grid options of parsed ``reproduce`` arguments."""
+    """The grid options of parsed ``reproduce`` arguments: the run and TD3 settings are those it has options for."""
     from ..experiments.grid import GridOptions
 
-    td3 = {} if args.start_steps is None else {"start_steps": args.start_steps}
-    return GridOptions(
-        seeds=None if args.seeds is None else parse_seeds(args.seeds), steps=args.steps, tasks=_split(args.tasks),
-        rows=_split(args.rows), eval_every=args.eval_every, eval_episodes=args.eval_episodes, td3=td3,
-        device=args.device, matmul=getattr(args, "matmul", "float32"))
+    return GridOptions(seeds=None if args.seeds is None else parse_seeds(args.seeds), tasks=_split(args.tasks),
+                       rows=_split(args.rows), run=_given(args, RunConfig), td3=_given(args, TD3Config))
+
+
+def _given(args, config_class: type) -> dict:
+    """The settings of ``config_class`` that parsed arguments carry (None: not given, the grid's or the default)."""
+    return {item.name: getattr(args, item.name) for item in described_fields(config_class)
+            if getattr(args, item.name, None) is not None}
 
 
 def cmd_reproduce(args) -> int:

@@ -16,27 +16,29 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.collect import RunRecord
-from ..config import RunConfig, TD3Config, actor_config
+from ..config import RunConfig, TD3Config, actor_config, check_settings, described_fields
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
 from ..rl.tasks import make_env, resolve_task
 from .grid_files import load_grid
 
+RUN_SETTINGS: tuple[str, ...] = tuple(item.name for item in described_fields(RunConfig))
+"""The run settings a grid's options may set for all its runs (:attr:`GridOptions.run`)."""
+PROTOCOL: tuple[str, ...] = tuple(item.name for item in dataclasses.fields(TableSpec) if item.name in RUN_SETTINGS)
+"""The run settings a table fixes for its runs (steps, evaluation): an option replaces the table's."""
+
 
 @dataclass(frozen=True)
 class GridOptions:
-    """How to shrink or place a table's grid (every None keeps the table's own protocol)."""
+    """How to shrink or place a table's grid (None and missing settings keep the table's protocol and the run
+    defaults)."""
 
     seeds: tuple[int, ...] | None = None  # seed numbers (table: 0 .. seeds-1)
-    steps: int | None = None  # environment steps per run
     tasks: tuple[str, ...] | None = None  # the table's tasks, or any others (paper short names, Gymnasium ids)
     rows: tuple[str, ...] | None = None  # a subset of the table's row slugs
-    eval_every: int | None = None
-    eval_episodes: int | None = None
-    td3: Mapping[str, Any] = field(default_factory=dict)  # TD3Config overrides, e.g. start_steps
-    device: str = "cpu"
-    matmul: str = "float32"  # float32 | bf16 (RunConfig.matmul)
+    run: Mapping[str, Any] = field(default_factory=dict)  # RunConfig settings (RUN_SETTINGS), e.g. steps, matmul
+    td3: Mapping[str, Any] = field(default_factory=dict)  # TD3Config settings, e.g. start_steps
 
 
 @dataclass(frozen=True)
@@ -119,10 +121,12 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
     seeds = tuple(range(spec.seeds)) if options.seeds is None else tuple(options.seeds)
     if not seeds:
         raise UserError("give at least one seed")
-    shrunk = dataclasses.replace(
-        spec, tasks=tasks, rows=rows, seeds=len(seeds),
-        steps=options.steps or spec.steps, eval_every=options.eval_every or spec.eval_every,
-        eval_episodes=options.eval_episodes or spec.eval_episodes)
+    settings = {name: value for name, value in options.run.items() if value is not None}
+    unknown = sorted(set(settings) - set(RUN_SETTINGS))
+    if unknown:
+        raise UserError(f"unknown run setting {unknown[0]!r}; the run settings are {', '.join(RUN_SETTINGS)}")
+    protocol = {name: settings.pop(name) for name in PROTOCOL if name in settings}
+    shrunk = dataclasses.replace(spec, tasks=tasks, rows=rows, seeds=len(seeds), **protocol)
     try:
         td3 = TD3Config(**dict(options.td3))
     except TypeError as error:
@@ -131,11 +135,11 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
     runs = []
     for task in tasks:
         for row in rows:
-            base = RunConfig(task=task, seeds=(seeds[0],), steps=shrunk.steps, eval_every=shrunk.eval_every,
-                             eval_episodes=shrunk.eval_episodes, actor=actor_config(row.preset, **row.overrides),
-                             td3=dataclasses.replace(td3, **row.td3), device=options.device,
-                             matmul=options.matmul, threads=1, label=row.label,
-                             table=spec.name, row=row.slug)
+            base = dataclasses.replace(RunConfig(
+                task=task, seeds=(seeds[0],), actor=actor_config(row.preset, **row.overrides),
+                td3=dataclasses.replace(td3, **row.td3), threads=1, label=row.label, table=spec.name, row=row.slug,
+                **{name: getattr(shrunk, name) for name in PROTOCOL}), **settings)
+            check_settings(base)
             for seed in seeds:
                 directory = out / spec.name / task_folder(task) / row.slug / f"seed{seed}"
                 runs.append(GridRun(task, row, seed, directory, dataclasses.replace(base, seeds=(seed,))))
