@@ -117,6 +117,13 @@ def test_bad_switch_values_are_one_line(argv, fragment, tmp_path, capsys):
     assert code == 2 and len(err.strip().splitlines()) == 1 and fragment in err
 
 
+def test_reproduce_help_names_every_table(monkeypatch):
+    from ilcsan.paper.layouts import TABLES
+
+    monkeypatch.setenv("COLUMNS", "1000")
+    assert " | ".join([*TABLES, "path/to/grid.toml"]) in _subparser("reproduce").format_help()
+
+
 def test_building_the_parser_does_not_import_torch():
     probe = ("import sys; from ilcsan.cli import build_parser; build_parser().parse_args(['train']); "
              "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'gymnasium'}))")

@@ -13,6 +13,7 @@ import sys
 from .. import __version__
 from ..config import RunConfig, TD3Config
 from ..errors import TrainingDiverged, UserError
+from ..paper.layouts import SEEDS, TABLES
 from . import commands, grid_commands
 from .options import _add_actor_switches, _add_run_options, _non_negative_int, _positive_int, add_setting
 
@@ -88,9 +89,9 @@ def _add_reproduce_command(subparsers) -> None:
     """``ilcsan reproduce TABLE|GRID.toml``: a paper table or a TOML grid as a grid of runs."""
     reproduce = subparsers.add_parser("reproduce", help="run a table of the paper as a grid of runs",
                                     description="Run the grid of a paper table (or your own TOML grid).")
-    reproduce.add_argument("table", nargs="?", help="perf | decode | dec_intra | intra | layer | path/to/grid.toml")
+    reproduce.add_argument("table", nargs="?", help=" | ".join([*TABLES, "path/to/grid.toml"]))
     reproduce.add_argument("--list", action="store_true", help="list the tables and their grids")
-    reproduce.add_argument("--seeds", default=None, help="seeds (default: the grid's; paper: 0-9)")
+    reproduce.add_argument("--seeds", default=None, help=f"seeds (default: the grid's; paper: 0-{SEEDS - 1})")
     add_setting(reproduce, RunConfig, "steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--tasks", default=None, help="comma-separated tasks: the table's, or any other "
                            "(a paper task or a Gymnasium id with Box actions; no paper numbers)")
