@@ -65,12 +65,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig, actor_config
+from ..deploy.runtime.synapses import GROUP_FC, INTRA_FC, fc_name
 from ..errors import UserError
 from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES, TASKS
 from ..rl import evaluation
 
-GROUP_FC = "Group FC"
-INTRA_FC = "Intra FC"
 INTRA_SYNAPSES_PER_POPULATION = {  # (self, lateral) kept → synapses of one P×P block
     (True, True): lambda p: p * p, (True, False): lambda p: p, (False, True): lambda p: p * (p - 1),
     (False, False): lambda p: 0,
@@ -160,7 +159,7 @@ class EnergyReport:
 # ------------------------------------------------------------------------------------ structure
 def fc_names(count: int) -> list[str]:
     """FC1 … FC<count> (the paper's names for the backbone's synaptic layers)."""
-    return [f"FC{index + 1}" for index in range(count)]
+    return [fc_name(index) for index in range(count)]
 
 
 def intra_synapses(intra: str, populations: int, population_size: int) -> int:
@@ -304,7 +303,7 @@ def paper_report(preset: str, task: str) -> EnergyReport:
     if preset == "dan":
         return analytic_report("dan", task, dims.n, dims.m, source="paper")
     row = FIRING_RATES[preset][task]
-    rates = {"FC1": row.fc1, "FC2": row.fc2, "FC3": row.fc3, GROUP_FC: row.group_fc}
+    rates = {fc_name(0): row.fc1, fc_name(1): row.fc2, fc_name(2): row.fc3, GROUP_FC: row.group_fc}
     if row.intra_fc is not None:
         rates[INTRA_FC] = row.intra_fc
     return analytic_report(preset, task, dims.n, dims.m, rates, source="paper")

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UserError
-from .synapses import Synapses
+from .synapses import GROUP_FC, INTRA_FC, Synapses, fc_name
 
 SCALE_SUFFIX = ".scale"
 """An int8 weight array ``<name>`` has its float32 scale in ``<name>.scale`` (W ≈ scale · int8)."""
@@ -213,7 +213,7 @@ def backbone_synapses(arrays: Mapping[str, np.ndarray], input_dim: int, output_d
             raise UserError(f"{source}: the output layer has {out_dim} neurons, expected M·P_out = {output_dim}")
         weight, scale = read_weight(arrays, name, (out_dim, fan_in), source)
         bias = read_array(arrays, f"layers.{index}.bias", (out_dim,), source)
-        layers.append(Synapses(f"FC{index + 1}", np.ascontiguousarray(weight.T), None, scale, bias, out_dim,
+        layers.append(Synapses(fc_name(index), np.ascontiguousarray(weight.T), None, scale, bias, out_dim,
                                out_dim))
         fan_in = out_dim
     return tuple(layers)
@@ -248,7 +248,7 @@ def intra_synapses(arrays: Mapping[str, np.ndarray], meta: Mapping[str, Any], po
     for m in range(populations):
         block = slice(m * size, (m + 1) * size)
         rows[block, block] = np.where(keep, weight[m], 0).T
-    return Synapses("Intra FC", rows, None, scale, bias, width, int(keep[:, 0].sum()))
+    return Synapses(INTRA_FC, rows, None, scale, bias, width, int(keep[:, 0].sum()))
 
 
 def decoder_synapses(arrays: Mapping[str, np.ndarray], populations: int, size: int, source: str) -> Synapses:
@@ -256,4 +256,4 @@ def decoder_synapses(arrays: Mapping[str, np.ndarray], populations: int, size: i
     weight, scale = read_weight(arrays, "decoder.weight", (populations, size), source)
     bias = read_array(arrays, "decoder.bias", (populations,), source)
     targets = np.repeat(np.arange(populations), size)[:, None]
-    return Synapses("Group FC", weight.reshape(-1, 1), targets, scale, bias, populations, 1)
+    return Synapses(GROUP_FC, weight.reshape(-1, 1), targets, scale, bias, populations, 1)

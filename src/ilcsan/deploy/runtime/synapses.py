@@ -13,6 +13,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+GROUP_FC = "Group FC"
+"""The population decoder's synaptic layer (X_t^m = W_D^m S_t^{L,m} + b_D^m), named as in the paper's Tables fr and op
+(also the energy analysis's name: :mod:`ilcsan.analysis.energy`)."""
+INTRA_FC = "Intra FC"
+"""The intra-layer connections' synaptic layer (Eq. (10)), named as in the paper's Tables fr and op."""
+
+
+def fc_name(index: int) -> str:
+    """The paper's name of the backbone's synaptic layer ``index`` (counted from 0): FC1 … FC(L+1)."""
+    return f"FC{index + 1}"
+
 
 class Synapses(NamedTuple):
     """An event-driven synaptic layer: presynaptic neuron i projects with the weights in row ``weights[i]``.
