@@ -1,4 +1,4 @@
-"""How long a table takes: the run count, the measured speed of one run, and ``reproduce --list``."""
+"""How long a table takes: the run count, the speed of one run (a setting), and ``reproduce --list``."""
 
 from __future__ import annotations
 
@@ -10,35 +10,29 @@ from ..config import TD3Config
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 
-MEASURED_STEPS_PER_SECOND = {"AuthenticAMD": 130.0, "GenuineIntel": 180.0}
-"""Environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations
-included, on the two kinds of machine this project runs on, by the CPU's vendor: the speed :func:`estimate_hours`
-and ``reproduce --list`` assume unless ``ILCSAN_STEPS_PER_SECOND`` gives the user's own measurement.
-``benchmarks/RESULTS.md``, compiled update program, float32, training steps/s: a 2-core AMD EPYC (Zen 4) 133
-(2026-11-30) and 114-147 over nine measurements, median 138 (2026-12-02), less the evaluations, so 130; a 2-core
-Intel Xeon (AMX; 2026-12-02, ``benchmarks/ratios.py``) 183-200, median 188, and the protocol's evaluations (10
-episodes in lockstep every 10 000 steps) add ≈ 4 % (a timed 1 000 000-step run), so 180. Another
-vendor gets the slower figure."""
+STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
+DEFAULT_STEPS_PER_SECOND = 130.0
+"""The speed :func:`estimate_hours` and ``reproduce --list`` assume when ``ILCSAN_STEPS_PER_SECOND`` is not set:
+environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations included. A
+setting, not a property of the machine at hand: set the variable to the steps/s that ``ilcsan train --task Hopper
+--threads 1`` prints at its evaluations here."""
 
 DAN_STEP_COST = 0.6
-"""Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper): 133/233 on the AMD
-and 212/366–215/404 on the Intel machine of benchmarks/RESULTS.md."""
+"""Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper; ``benchmarks/speed.py``
+measures both on a machine)."""
 PROXY_COST_PER_ITERATION = 0.6
-"""Proxy Target adds about this much of ILC-SAN's step time per regression step K (benchmarks/methods.py, Intel,
-compiled, its regression steps compiled too, denormals flushed: 2.7× the step time with K = 3 and 1.47× with K = 1,
-i.e. 0.57 and 0.47 per step, rounded up)."""
+"""Proxy Target adds about this much of ILC-SAN's step time per regression step K (compiled, its regression steps
+compiled too; ``benchmarks/methods.py`` measures it)."""
 NOISY_STEP_COST = 2.0
-"""NoisySAN exploration's step time relative to ILC-SAN's (benchmarks/methods.py, Intel, compiled: 0.50–0.57× the
-steps/s in three measurements; the slowest one)."""
+"""NoisySAN exploration's step time relative to ILC-SAN's (compiled; ``benchmarks/methods.py`` measures it)."""
 
-STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
 
 
 def cpu_field(name: str, path: str = "/proc/cpuinfo") -> str | None:
-    """The value of the first ``name`` line of /proc/cpuinfo (``vendor_id``, ``model name``); None where the file
-    is unreadable or has no such line."""
+    """The value of the first ``name`` line of /proc/cpuinfo (``model name``, ``vendor_id``); None where the file
+    is unreadable or has no such line. The benchmarks name the CPU they measured with it; estimates do not use it."""
     try:
         with open(path, encoding="utf-8") as stream:
             for line in stream:
@@ -50,17 +44,11 @@ def cpu_field(name: str, path: str = "/proc/cpuinfo") -> str | None:
     return None
 
 
-def cpu_vendor() -> str | None:
-    """The CPU's vendor string (``GenuineIntel``, ``AuthenticAMD``); None where unknown."""
-    return cpu_field("vendor_id")
-
-
 def steps_per_second_default() -> float:
-    """The steps/s figure for estimates: ``ILCSAN_STEPS_PER_SECOND`` if set, else the figure measured on a machine
-    with this CPU's vendor (:data:`MEASURED_STEPS_PER_SECOND`), else the slower of those."""
+    """The steps/s figure for estimates: ``ILCSAN_STEPS_PER_SECOND`` if set, else :data:`DEFAULT_STEPS_PER_SECOND`."""
     text = os.environ.get(STEPS_PER_SECOND_ENV)
     if not text:
-        return MEASURED_STEPS_PER_SECOND.get(cpu_vendor(), min(MEASURED_STEPS_PER_SECOND.values()))
+        return DEFAULT_STEPS_PER_SECOND
     try:
         value = float(text)
     except ValueError:
@@ -72,7 +60,7 @@ def steps_per_second_default() -> float:
 
 def row_step_cost(row: RowSpec) -> float:
     """A row's time per environment step relative to plain ILC-SAN's: DAN is cheaper, Proxy Target and NoisySAN
-    dearer (the constants above, measured); every other spiking row counts as 1."""
+    dearer (the constants above); every other spiking row counts as 1."""
     if row.preset == "dan":
         return DAN_STEP_COST
     cost = 1.0
@@ -86,12 +74,11 @@ def row_step_cost(row: RowSpec) -> float:
 def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) -> float:
     """Wall-clock hours to run a whole table on ``cores`` cores, one run per core at a time.
 
-    A run takes ``steps × cost / steps_per_second`` seconds (``steps_per_second`` measured for one ILC-SAN run on
-    one core, evaluations included; ``cost`` its row's :func:`row_step_cost`); the runs are dealt longest first
-    to the least busy core, and the estimate is the busiest core's total (with equal runs: ceil(runs / cores)
+    A run takes ``steps × cost / steps_per_second`` seconds (``steps_per_second`` the speed of one ILC-SAN run on
+    Hopper on one core, evaluations included; ``cost`` its row's :func:`row_step_cost`); the runs are dealt longest
+    first to the least busy core, and the estimate is the busiest core's total (with equal runs: ceil(runs / cores)
     waves). Training the seeds of a cell together (as ``reproduce`` does) is faster in aggregate, so this is an
-    upper estimate for that part, while the tasks larger than Hopper (Ant, Humanoid) are slower than the measured
-    run.
+    upper estimate for that part, while the tasks larger than Hopper (Ant, Humanoid) are slower than that run.
     """
     spec = TABLES[table] if isinstance(table, str) else table
     if steps_per_second <= 0 or cores < 1:
@@ -141,9 +128,10 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
     cores = cores or os.cpu_count() or 1
     blocks = [describe_table(spec, speed, cores) for spec in (specs or TABLES.values())]
     footer = (f"Estimates assume {speed:g} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
-              f"evaluations included; set {STEPS_PER_SECOND_ENV} to your own measurement) and one run per core; "
-              f"a run's hours = steps × its row's cost / (steps/s) / 3600 (DAN {DAN_STEP_COST:g}, Proxy Target "
-              f"1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}, measured), dealt longest first to "
-              "the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a cluster with --backend "
-              "ray --address HOST:PORT.")
+              f"evaluations included; the setting {STEPS_PER_SECOND_ENV}, default {DEFAULT_STEPS_PER_SECOND:g}: set it "
+              "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
+              f"a run's hours = steps × its row's cost / (steps/s) / 3600 (relative to ILC-SAN's step: DAN "
+              f"{DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}), "
+              "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "
+              "cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])
