@@ -1,1 +1,1 @@
-"""Analysis of runs: the paper's published numbers, reports (tables, curves) and the energy model."""
+"""Analysis of runs: reports (the paper's reward tables beside its published numbers, curves) and the energy model."""

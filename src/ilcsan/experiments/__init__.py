@@ -1,1 +1,2 @@
-"""Grids of runs: the paper's tables, jobs, backends (local, Ray) and the coordinator of ``ilcsan reproduce``."""
+"""Grids of runs: the paper's tables or a user's grid file expanded into runs, jobs, backends (local, Ray) and the
+coordinator of ``ilcsan reproduce``."""
