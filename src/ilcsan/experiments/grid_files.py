@@ -7,6 +7,7 @@ with the evaluation protocol, each row an actor preset plus overrides of the act
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import tomllib
 from collections.abc import Mapping
@@ -44,8 +45,7 @@ _TYPE_WORDS = {int: "an integer", float: "a number", str: "a string"}
 _SLUG = re.compile(r"^[a-z0-9][a-z0-9._+-]*$")
 _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
 
-
-_TOP_KEYS = ("name", "caption", "tasks", "rows", "seeds", "steps", "eval_every", "eval_episodes")
+_TOP_KEYS = tuple(item.name for item in dataclasses.fields(TableSpec))  # name, caption, tasks, rows, protocol
 _ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
 ROW_TD3_KEYS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma",
                                  "noisy_beta", "noisy_return_reference")
