@@ -15,13 +15,8 @@ torch.set_num_threads(1)
 def _deterministic_torch():
     torch.manual_seed(0)
     yield
-    from ilcsan.rl.settings import denormals_flushed, flush_denormals
-    from ilcsan.snn.matmul import matmul_path, use_matmul_path
+    from ilcsan.compute.process import denormals_flushed, flush_denormals
 
-    left = matmul_path()
-    if left != "aten":  # a run sets this process's matmul path and must give it back when it closes
-        use_matmul_path("aten")
-        pytest.fail(f"the test left this process's matmul path on {left!r}")
     if denormals_flushed():  # a run flushes denormals and must give the setting back (hypothesis needs them)
         flush_denormals(False)
         pytest.fail("the test left this process flushing denormal floats to zero")

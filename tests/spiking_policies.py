@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from ilcsan.config import actor_config
-from ilcsan.runs.policy import Policy
+from ilcsan.deploy.policy import Policy
 from ilcsan.snn.actor import build_actor
 
 

@@ -12,7 +12,7 @@ import torch
 from ilcsan.analysis.report import write_report
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.training import Trainer
-from ilcsan.snn.actor import ActorOutput, build_actor
+from ilcsan.snn.actor import build_actor
 from ilcsan.snn.diagnostics import (
     DIAGNOSTICS,
     STUCK_EVALUATIONS,
@@ -21,6 +21,7 @@ from ilcsan.snn.diagnostics import (
     output_diagnostics,
     saturated_share,
 )
+from ilcsan.snn.output import ActorOutput
 
 
 def test_output_diagnostics_of_hand_made_trains():

@@ -14,8 +14,8 @@ from ilcsan.config import actor_config
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.nir import build_graph, simulate_nir
+from ilcsan.deploy.policy import Policy
 from ilcsan.deploy.quantize import quantize_bundle
-from ilcsan.runs.policy import Policy
 from ilcsan.snn.actor import build_actor
 
 # One output population of P = 2 CLIF neurons (α_C 0.5, α_V 0.75, V_th 0.5), T = 2, a constant feed-forward drive

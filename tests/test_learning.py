@@ -6,9 +6,9 @@ import csv
 
 import pytest
 
+from ilcsan.compute.process import set_matmul_precision
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.evaluation import random_policy_return
-from ilcsan.rl.settings import set_matmul_precision
 from ilcsan.rl.training import train
 from ilcsan.snn.diagnostics import constant_saturated_action
 

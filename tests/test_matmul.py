@@ -1,5 +1,6 @@
-"""The matmul paths (:mod:`ilcsan.snn.matmul`): every float32 path computes the same products, gradients and
-TD3 updates; bf16 really rounds; the choice is the measured fastest and is recorded in config.json."""
+"""The matmul paths (:mod:`ilcsan.compute.matmul`): every float32 path computes the same products, gradients and
+TD3 updates; bf16 really rounds; the choice is the measured fastest, is recorded in config.json, and reaches the
+networks as an explicit object (no process-wide setting)."""
 
 from __future__ import annotations
 
@@ -8,34 +9,32 @@ import json
 import pytest
 import torch
 
-from ilcsan.config import RunConfig, TD3Config, actor_config
-from ilcsan.rl.settings import run_products
-from ilcsan.rl.training import Trainer
-from ilcsan.snn.ensemble import EnsembleLinear, seed_generators
-from ilcsan.snn.matmul import (
+from ilcsan.compute.matmul import (
     FLOAT32_PATHS,
+    MatmulPath,
     bf16_operands,
     ensemble_matmul,
     fastest_float32_path,
     gaining_products,
     layer_products,
-    matmul_path,
     measure_paths,
     onednn_available,
-    product_path,
     product_times,
-    use_matmul_path,
 )
+from ilcsan.compute.programs import DirectProgram, value_and_grads
+from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.rl.matmul_choice import run_products
+from ilcsan.rl.training import Trainer
+from ilcsan.snn.ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 
 PATHS = [path for path in FLOAT32_PATHS if path != "onednn" or onednn_available()]
 
 
 @pytest.fixture
 def restore_path():
-    """Put back the process's matmul path and torch's float32 matmul precision."""
-    before, precision = matmul_path(), torch.get_float32_matmul_precision()
+    """Put back torch's float32 matmul precision."""
+    precision = torch.get_float32_matmul_precision()
     yield
-    use_matmul_path(before)
     torch.set_float32_matmul_precision(precision)
 
 
@@ -57,26 +56,23 @@ def test_every_path_computes_a_times_w_transposed_per_member(path):
 
 
 @pytest.mark.parametrize("path", PATHS)
-def test_layer_gradients_agree_on_every_float32_path(path, restore_path):
-    layer = EnsembleLinear(2, 7, 5)
-    layer.reset_parameters(seed_generators([0, 1], 0))
+def test_layer_gradients_agree_on_every_float32_path(path):
     x = torch.randn(2, 4, 6, 7, requires_grad=True)
 
-    def grads():
-        layer.zero_grad()
+    def grads(kind: str):
+        layer = EnsembleLinear(2, 7, 5, matmul=MatmulPath(kind))
+        layer.reset_parameters(seed_generators([0, 1], 0))
         x.grad = None
         (layer(x) ** 2).sum().backward()
         return x.grad.clone(), layer.weight.grad.clone(), layer.bias.grad.clone()
 
-    use_matmul_path("aten")
-    reference = grads()
-    use_matmul_path(path)
-    for ours, theirs in zip(grads(), reference, strict=True):
+    reference = grads("aten")
+    for ours, theirs in zip(grads(path), reference, strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
 
 
 @pytest.mark.parametrize("compiled", [False, True])
-def test_first_layer_weight_gradient_on_onednn_equals_mkls(compiled, restore_path):
+def test_first_layer_weight_gradient_on_onednn_equals_mkls(compiled):
     """A first layer's weight gradient (its input needs none) on oneDNN equals MKL's, eagerly and compiled as the
     update program compiles it (:func:`value_and_grads` in a :class:`DirectProgram`). Compiled through
     ``torch.func.grad_and_value`` instead, torch 2.13 returns it as zeros — why the program does not use it."""
@@ -84,21 +80,22 @@ def test_first_layer_weight_gradient_on_onednn_equals_mkls(compiled, restore_pat
         pytest.skip("this torch has no oneDNN")
     from torch.func import functional_call, grad_and_value
 
-    from ilcsan.rl.update_program import DirectProgram, value_and_grads
-    from ilcsan.snn.ensemble import EnsembleMLP
-
-    mlp = EnsembleMLP(2, [5, 16, 1])
-    mlp.reset_parameters(seed_generators([1, 2], 0))
     x = torch.randn(2, 16, 5, generator=torch.Generator().manual_seed(0))
-    names = [name for name, _ in mlp.named_parameters()]
-    params = [p.detach() for p in mlp.parameters()]
+
+    def network(kind: str):
+        mlp = EnsembleMLP(2, [5, 16, 1], MatmulPath(kind))
+        mlp.reset_parameters(seed_generators([1, 2], 0))
+        return mlp
+
+    names = [name for name, _ in network("aten").named_parameters()]
+    params = [p.detach() for p in network("aten").parameters()]
+    mlp = network("aten")
 
     def loss(tensors):
         return (functional_call(mlp, dict(zip(names, tensors, strict=True)), (x,)) ** 2).sum()
 
-    use_matmul_path("aten")
     reference, _ = value_and_grads(loss, params)
-    use_matmul_path("onednn")
+    mlp = network("onednn")
     with torch.no_grad():
         def gradients(tensors):
             return value_and_grads(loss, tensors)
@@ -127,7 +124,7 @@ def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
                        actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=10))
     Trainer(config, tmp_path / "run", progress=False, log=lines.append).close()
     recorded = json.loads((tmp_path / "run" / "config.json").read_text())["matmul_path"]
-    assert recorded["path"] in PATHS and recorded["path"] == matmul_path() and not recorded["compiled"]
+    assert recorded["path"] in PATHS and not recorded["compiled"]
     assert set(recorded["gflops"]) == set(PATHS)
     assert recorded["path"] == fastest_float32_path(recorded["gflops"])
     assert [line for line in lines if line.startswith(f"matmul: {recorded['path']} (float32 GFLOP/s")]
@@ -146,14 +143,27 @@ def test_a_bf16_run_rounds_only_the_products_it_measured_faster_in_bfloat16(rest
                              ((1, 3, 5), (1, 4, 5)): (1.0, 2.0)}) == {((1, 5, 4), (1, 3, 4))}
     generator = torch.Generator().manual_seed(4)
     big, small = ((1, 40, 30), (1, 20, 30)), ((1, 40, 6), (1, 20, 6))
-    use_matmul_path("bf16", {big})
-    assert product_path(*big) == "bf16" and product_path(*small) == "aten"
+    path = MatmulPath("bf16", {big})
+    assert path.product_path(*big) == "bf16" and path.product_path(*small) == "aten"
     for shapes, rounded in ((big, True), (small, False)):
         a, w = torch.randn(shapes[0], generator=generator), torch.randn(shapes[1], generator=generator)
         exact = torch.bmm(a.double(), w.double().transpose(1, 2))
-        assert torch.allclose(ensemble_matmul(a, w).double(), exact, rtol=1e-5, atol=1e-5) is not rounded
-    use_matmul_path("bf16")  # no list: every product
-    assert product_path(*small) == "bf16"
+        result = ensemble_matmul(a, w, path.product_path(a.shape, w.shape))
+        assert torch.allclose(result.double(), exact, rtol=1e-5, atol=1e-5) is not rounded
+    assert MatmulPath("bf16").product_path(*small) == "bf16"  # no list: every product
+
+
+def test_a_layer_runs_its_products_on_the_path_it_was_built_with():
+    """No process-wide setting: two layers built with different paths in one process keep their own."""
+    generator = torch.Generator().manual_seed(5)
+    x = torch.randn(1, 40, 30, generator=generator)
+    exact, rounded = (EnsembleLinear(1, 30, 20, matmul=MatmulPath(kind)) for kind in ("aten", "bf16"))
+    for layer in (exact, rounded):
+        layer.reset_parameters(seed_generators([0], 0))
+        reference = torch.baddbmm(exact.bias.unsqueeze(1).double(), x.double(), exact.weight.double().transpose(1, 2))
+        assert torch.allclose(exact(x).double(), reference, atol=1e-5)
+        assert not torch.allclose(rounded(x).double(), reference, atol=1e-5)
+        assert torch.allclose(exact(x).double(), reference, atol=1e-5)  # the bf16 layer changed nothing else
 
 
 def test_bf16_operands_come_contiguous_in_one_cast():
@@ -178,17 +188,21 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
     import ilcsan.snn.ensemble as ensemble
 
     seen = set()
+    forward, backward = ensemble._EnsembleAffine.forward, ensemble._EnsembleAffine.backward
 
-    def recording(a_shape, w_shape):
-        seen.add((tuple(a_shape), tuple(w_shape)))
-        return product_path(a_shape, w_shape)
+    def recording_forward(flat, weight, bias, paths):
+        seen.add((tuple(flat.shape), tuple(weight.shape)))
+        return forward(flat, weight, bias, paths)
 
-    def recording_matmul(a, w, path=None):
-        seen.add((tuple(a.shape), tuple(w.shape)))
-        return ensemble_matmul(a, w, path)
+    def recording_backward(ctx, grad_output):
+        flat, weight = ctx.saved_tensors
+        k, rows, d_in = flat.shape
+        d_out = weight.shape[1]
+        seen.update({((k, rows, d_out), (k, d_in, d_out)), ((k, d_out, rows), (k, d_in, rows))})
+        return backward(ctx, grad_output)
 
-    monkeypatch.setattr(ensemble, "product_path", recording)
-    monkeypatch.setattr(ensemble, "ensemble_matmul", recording_matmul)
+    monkeypatch.setattr(ensemble._EnsembleAffine, "forward", staticmethod(recording_forward))
+    monkeypatch.setattr(ensemble._EnsembleAffine, "backward", staticmethod(recording_backward))
     config = RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=160, eval_every=160, eval_episodes=2, threads=1,
                        actor=actor_config(preset, hidden=(8,), **options), compile="off",
                        td3=TD3Config(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),

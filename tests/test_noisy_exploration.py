@@ -80,7 +80,7 @@ def test_transmission_noise_reaches_the_intra_layer_connections_and_not_the_rese
 
 def test_acting_noise_is_one_coloured_series_per_episode_read_t_samples_per_action():
     agent = _agent()
-    exploration = agent.exploration
+    exploration = agent.exploration.module
     timesteps, channels = SMALL_ACTOR.timesteps, exploration.channels
     assert channels == 2 * (16 + 16 + 2 * SMALL_ACTOR.population_out) + 2
     assert exploration.layer_sigmas == pytest.approx([0.5 / 4, 0.5 / 4, 0.5 / np.sqrt(20)])
@@ -94,13 +94,13 @@ def test_acting_noise_is_one_coloured_series_per_episode_read_t_samples_per_acti
     assert autocorrelation(pink, timesteps) > 0.35  # and across successive actions
     exploration.end_episode(0)
     assert not torch.equal(exploration.acting_noise()[0, 0], series[:timesteps])  # a new episode, a new series
-    white = _agent(TD3Config(exploration="noisy", noisy_beta=0.0, noisy_return_reference=1.0)).exploration
+    white = _agent(TD3Config(exploration="noisy", noisy_beta=0.0, noisy_return_reference=1.0)).exploration.module
     noise = torch.cat([white.acting_noise()[0, 0] for _ in range(40)]).T.numpy().astype(np.float64)
     assert abs(autocorrelation(noise, 1)) < 0.05
 
 
 def test_the_update_noise_has_the_window_covariance_of_the_exploration_series():
-    exploration = _agent().exploration
+    exploration = _agent().exploration.module
     draws = exploration.update_noise(4000)[0].reshape(-1, 5, exploration.channels)  # (B, T, C)
     windows = draws.permute(0, 2, 1).reshape(-1, 5).double().numpy()
     expected = window_covariance(1.0, 51 * 5, 5)
@@ -112,7 +112,7 @@ def test_evaluation_is_deterministic_and_unchanged_while_exploring_is_not():
     noisy, plain = _agent(), _agent(TD3Config())
     states = np.random.default_rng(0).normal(size=(1, 3)).astype(np.float32)
     before = noisy.act(states)
-    explored = [noisy.explore(states) for _ in range(3)]
+    explored = [noisy.explore(states, []) for _ in range(3)]
     assert np.array_equal(noisy.act(states), before)  # exploring leaves the deterministic policy alone
     assert np.array_equal(before, plain.act(states))  # same actor as without NoisySAN
     assert all(np.abs(a - before).max() > 1e-4 for a in explored)
@@ -121,7 +121,7 @@ def test_evaluation_is_deterministic_and_unchanged_while_exploring_is_not():
 
 def test_the_actor_loss_adds_the_noise_penalty_weighted_by_the_return():
     agent = _agent()
-    exploration = agent.exploration
+    exploration = agent.exploration.module
     exploration.set_returns([[{"eval_return_mean": 30.0}, {"eval_return_mean": 50.0}]])
     assert float(exploration.weights[0]) == pytest.approx(0.5)  # latest return / R* = 50 / 100
     exploration.set_returns([[{"eval_return_mean": -20.0}]])
@@ -130,7 +130,7 @@ def test_the_actor_loss_adds_the_noise_penalty_weighted_by_the_return():
              "penalty_weights": torch.tensor([0.5])}
     plain = -agent.critic(batch["obs"], agent.actor(batch["obs"]), first_only=True).mean()
     sigma = exploration.decoder_sigma
-    loss = agent.actor_loss(batch)
+    loss = agent.program.actor_loss(batch)
     assert float(loss.detach()) == pytest.approx(float(plain.detach()) + 0.5 * float(sigma.detach().mean()) ** 2,
                                                  rel=1e-6)
     (gradient,) = torch.autograd.grad(loss, sigma)  # zero noise: only the penalty depends on σ_d
@@ -139,13 +139,13 @@ def test_the_actor_loss_adds_the_noise_penalty_weighted_by_the_return():
 
 def test_an_update_steps_the_decoder_noise_scale_with_the_actor():
     agent = _agent()
-    agent.exploration.weights = torch.tensor([1.0])
-    sigma = agent.exploration.decoder_sigma.detach().clone()
+    agent.exploration.module.weights = torch.tensor([1.0])
+    sigma = agent.exploration.module.decoder_sigma.detach().clone()
     rng = np.random.default_rng(0)
     for _ in range(2):  # policy delay 2: the second update moves the actor and σ_d
         agent.update(agent.to_batch(_random_batch(rng, 1)))
-    assert not torch.equal(agent.exploration.decoder_sigma, sigma)
-    assert agent.exploration.optimizer.state[agent.exploration.decoder_sigma]["step"] == 1
+    assert not torch.equal(agent.exploration.module.decoder_sigma, sigma)
+    assert float(agent.exploration.adam.steps[0]) == 1
 
 
 def _random_batch(rng, seeds: int) -> dict[str, np.ndarray]:
@@ -162,30 +162,32 @@ def test_a_compiled_noisy_agent_updates_like_the_eager_one():
     eager = TD3Agent(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20)
     compiled = TD3Agent(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20, compile=True)
     for agent in (eager, compiled):
-        agent.exploration.weights = torch.tensor([0.8])
+        agent.exploration.module.weights = torch.tensor([0.8])
     rng = np.random.default_rng(4)
     assert_same_updates(eager, compiled, [_random_batch(rng, 1) for _ in range(4)], atol=1e-4)
-    assert torch.allclose(eager.exploration.decoder_sigma, compiled.exploration.decoder_sigma, atol=1e-6)
-    assert not torch.allclose(eager.exploration.decoder_sigma, torch.full((1, 2), 0.5 / np.sqrt(2)))
+    sigmas = [agent.exploration.module.decoder_sigma for agent in (eager, compiled)]
+    assert torch.allclose(*sigmas, atol=1e-6)
+    assert not torch.allclose(sigmas[0], torch.full((1, 2), 0.5 / np.sqrt(2)))
     states = rng.normal(size=(1, 3)).astype(np.float32)
     for _ in range(3):  # exploring: the same noise windows, the learned σ_d read in place by the compiled program
-        assert np.allclose(eager.explore(states), compiled.explore(states), atol=1e-5)
-    (program,) = compiled.exploring_fn.programs.values()
+        assert np.allclose(eager.explore(states, []), compiled.explore(states, []), atol=1e-5)
+    (program,) = compiled.exploration.exploring_fn.programs.values()
     assert program.direct  # called directly, its inputs resolved to the agent's own tensors
 
 
 def test_each_seed_of_a_stacked_noisy_run_explores_and_updates_like_a_single_run():
     many, single = _agent(seeds=(4, 11)), _agent(seeds=(11,))
     for agent in (many, single):
-        agent.exploration.weights = torch.ones(len(agent.seeds))
+        agent.exploration.module.weights = torch.ones(len(agent.seeds))
     states = np.random.default_rng(2).normal(size=(2, 3)).astype(np.float32)
-    assert np.allclose(many.explore(states)[1:], single.explore(states[1:]), atol=1e-5)
+    assert np.allclose(many.explore(states, [])[1:], single.explore(states[1:], []), atol=1e-5)
     rng = np.random.default_rng(3)
     for _ in range(4):
         arrays = _random_batch(rng, 2)
         many.update(many.to_batch(arrays))
         single.update(single.to_batch({k: v[1:] for k, v in arrays.items()}))
-    assert torch.allclose(many.exploration.decoder_sigma[1:], single.exploration.decoder_sigma, atol=1e-6)
+    assert torch.allclose(many.exploration.module.decoder_sigma[1:], single.exploration.module.decoder_sigma,
+                          atol=1e-6)
     for (name, p_many), (_, p_single) in zip(many.actor.named_parameters(), single.actor.named_parameters(),
                                              strict=True):
         assert torch.allclose(p_many[1:], p_single, atol=1e-5), name

@@ -329,16 +329,16 @@ def test_diverging_loss_stops_the_run(tmp_path, capsys, faulty):
 
 
 def test_nan_loss_is_caught_at_the_update_chunk_it_appears(tmp_path, capsys, monkeypatch):
-    from ilcsan.rl.td3 import TD3Agent
+    from ilcsan.rl.update import TD3Update
 
-    original, calls = TD3Agent.critic_loss, {"n": 0}
+    original, calls = TD3Update.critic_loss, {"n": 0}
 
-    def poisoned(self, batch):
+    def poisoned(self, batch, target, critic=None):
         calls["n"] += 1
-        loss = original(self, batch)
+        loss = original(self, batch, target, critic)
         return loss * float("nan") if calls["n"] > 75 else loss  # updates 1-75: steps 100-150; 76-100: step 175
 
-    monkeypatch.setattr(TD3Agent, "critic_loss", poisoned)
+    monkeypatch.setattr(TD3Update, "critic_loss", poisoned)
     code, _, err = cli(capsys, "train", "--task", "Pendulum-v1", *FAULT_OPTIONS, "--out", tmp_path / "run")
     assert_stopped_cleanly(tmp_path / "run", code, err, "step 175:", "TD3 loss diverged", "critic nan")
 
@@ -448,7 +448,7 @@ def test_impossible_settings_are_refused_at_once(tmp_path, capsys, option, value
 
 def test_the_memory_estimate_admits_the_papers_largest_runs():
     from ilcsan.config import actor_config
-    from ilcsan.rl.memory import check_memory, memory_estimate
+    from ilcsan.rl.ram import check_memory, memory_estimate
 
     paper = RunConfig(task="Humanoid", seeds=(0,), steps=1_000_000)
     check_memory(paper, 376, 17)  # one seed of the paper's largest task fits

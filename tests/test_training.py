@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
+from ilcsan.compute.matmul import MatmulPath, onednn_available
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl import training
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import Trainer, train
-from ilcsan.snn.matmul import matmul_path, onednn_available, use_matmul_path
 
 TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
 
@@ -42,7 +42,10 @@ def test_critic_target_uses_min_of_twins_and_ignores_truncation():
         expected_target = 1.0 + 0.99 * (1 - batch["terminal"]) * q_next
         q = agent.critic(batch["obs"], batch["action"])
     expected = ((q - expected_target.unsqueeze(1)) ** 2).mean(-1).sum()
-    assert torch.allclose(agent.critic_loss(batch), expected)
+    with torch.no_grad():
+        target = agent.program.target_values(batch["next_obs"], torch.zeros(1, 4, 1), batch["reward"],
+                                             batch["terminal"])
+    assert torch.allclose(agent.program.critic_loss(batch, target), expected)
 
 
 def test_each_seed_of_an_ensemble_updates_like_a_single_run():
@@ -85,55 +88,59 @@ def test_first_critic_equals_the_first_twin_of_every_seed():
 
 
 @pytest.fixture
-def _restore_matmul_settings():
-    before, path, threads = torch.get_float32_matmul_precision(), matmul_path(), torch.get_num_threads()
+def _restore_process_settings():
+    before, threads = torch.get_float32_matmul_precision(), torch.get_num_threads()
     yield
     torch.set_float32_matmul_precision(before)
-    use_matmul_path(path)
     torch.set_num_threads(threads)
 
 
 @pytest.mark.parametrize(("preset", "path"), [("ilc-san", "aten"), ("dan", "aten"), ("ilc-san", "onednn")])
-def test_compiled_update_program_equals_the_eager_update(preset, path, _restore_matmul_settings):
-    """The whole update as one compiled program (fullgraph=True: any graph break fails) leaves the same actor,
-    critic, targets and Adam states as the eager update, over 12 updates (6 delayed), for 2 stacked seeds, on
-    each float32 matmul path (eager, the paths agree: tests/test_matmul.py). (With Proxy Target:
-    tests/test_proxy_target.py.)"""
+def test_compiled_update_program_equals_the_eager_update(preset, path):
+    """The one definition of the update (:mod:`ilcsan.rl.update`) compiled as one program per variant (fullgraph=True:
+    any graph break fails) leaves the same actor, critic, targets and Adam states as the same functions run
+    uncompiled, over 12 updates (6 delayed), for 2 stacked seeds, on each float32 matmul path (eager, the paths
+    agree: tests/test_matmul.py). (With Proxy Target: tests/test_proxy_target.py; NoisySAN:
+    tests/test_noisy_exploration.py.)"""
     if path == "onednn" and not onednn_available():
         pytest.skip("this torch has no oneDNN")
-    use_matmul_path(path)
     small = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
     config = actor_config(preset, **small[preset])
     td3 = TD3Config(critic_hidden=(16, 16))
-    eager = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8))
-    compiled = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True)
-    assert eager.program is None and compiled.program is not None
+    eager = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), matmul=MatmulPath(path))
+    compiled = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True,
+                        matmul=MatmulPath(path))
+    assert eager.program.critic_step.__func__ is type(eager.program)._critic_step  # the same function, uncompiled
     rng = np.random.default_rng(1)
     batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
     assert_same_updates(eager, compiled, batches, atol=2e-5)
     assert compiled.program.critic_step.direct and compiled.program.delayed_step.direct
-    for optimizer in ("actor_optimizer", "critic_optimizer"):
-        for before, after in zip(getattr(eager, optimizer).state.values(), getattr(compiled, optimizer).state.values(),
-                                 strict=True):
-            for key in ("step", "exp_avg", "exp_avg_sq"):
-                torch.testing.assert_close(before[key], after[key], atol=1e-6, rtol=1e-4)
+    for adam in ("actor_adam", "critic_adam"):
+        for before, after in zip(*(getattr(agent, adam).tensors() for agent in (eager, compiled)), strict=True):
+            for ours, theirs in zip(before, after, strict=True):
+                torch.testing.assert_close(ours, theirs, atol=1e-6, rtol=1e-4)
     state = rng.normal(size=(2, 3)).astype(np.float32)
     assert np.allclose(eager.act(state), compiled.act(state), atol=1e-5)
 
 
-def test_matmul_option_sets_the_path_for_the_run_and_close_gives_the_process_its_settings_back(
-        tmp_path, _restore_matmul_settings):
+def layer_paths(agent) -> set[str]:
+    """The matmul kinds of every synaptic layer of an agent's networks."""
+    return {module.matmul.kind for network in (agent.actor, agent.critic, agent.actor_target, agent.critic_target)
+            for module in network.modules() if hasattr(module, "matmul")}
+
+
+def test_matmul_option_gives_the_run_its_path_and_close_gives_the_process_its_settings_back(
+        tmp_path, _restore_process_settings):
     torch.set_float32_matmul_precision("medium")
     torch.set_num_threads(2)
     trainer = Trainer(tiny_run(matmul="bf16", steps=10), tmp_path / "bf16", progress=False, log=lambda *_: None)
     # on a CPU the bf16 path rounds the products it chose itself; torch's precision keeps every other one float32
-    assert matmul_path() == "bf16" and torch.get_float32_matmul_precision() == "highest"
+    assert layer_paths(trainer.agent) == {"bf16"} and torch.get_float32_matmul_precision() == "highest"
     assert torch.get_num_threads() == 1  # tiny_run's --threads
     trainer.close()
-    assert matmul_path() == "aten" and torch.get_float32_matmul_precision() == "medium"
-    assert torch.get_num_threads() == 2
+    assert torch.get_float32_matmul_precision() == "medium" and torch.get_num_threads() == 2
     trainer = Trainer(tiny_run(steps=10), tmp_path / "f32", progress=False, log=lambda *_: None)
-    assert matmul_path() != "bf16" and torch.get_float32_matmul_precision() == "highest"
+    assert layer_paths(trainer.agent) <= {"aten", "onednn"} and torch.get_float32_matmul_precision() == "highest"
     trainer.close()
     with pytest.raises(UserError, match="--matmul 'fp8' is not one of: float32, bf16"):
         Trainer(tiny_run(matmul="fp8"), tmp_path / "bad", progress=False, log=lambda *_: None)
@@ -206,14 +213,14 @@ def assert_same_updates(eager, compiled, batches, atol: float) -> None:
             assert torch.allclose(p_eager, p_compiled, atol=atol), f"{module}.{name}"
 
 
-def test_a_run_that_cannot_start_leaves_the_process_settings_as_they_were(tmp_path, _restore_matmul_settings):
+def test_a_run_that_cannot_start_leaves_the_process_settings_as_they_were(tmp_path, _restore_process_settings):
     train(tiny_run(steps=10, eval_every=10), tmp_path / "run", progress=False, log=lambda *_: None)
     torch.set_num_threads(2)
     torch.set_float32_matmul_precision("high")
     with pytest.raises(UserError, match="--resume"):  # the folder holds a run: refused after the settings applied
         Trainer(tiny_run(steps=10, eval_every=10, matmul="bf16"), tmp_path / "run", progress=False,
                 log=lambda *_: None)
-    assert (torch.get_num_threads(), torch.get_float32_matmul_precision(), matmul_path()) == (2, "high", "aten")
+    assert (torch.get_num_threads(), torch.get_float32_matmul_precision()) == (2, "high")
 
 
 def test_interrupted_run_resumes_to_the_same_curve(tmp_path, monkeypatch):
@@ -309,7 +316,8 @@ def test_run_directory_contents(tmp_path):
     config = json.loads((tmp_path / "run" / "config.json").read_text())
     assert config["seed"] == 0 and config["actor"]["intra"] == "intra" and config["label"] == "ilc-san"
     assert list(read_metrics(tmp_path / "run" / "metrics.csv")[0]) == [
-        "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second"]
+        "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second",
+        "saturated_actions", "frozen_output_neurons", "surrogate_active", "mean_abs_preaction"]
     assert list((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard events are written"
 
 

@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
 from ilcsan.rl.callbacks import ProgressReport, TensorBoardLog, best_so_far
 from ilcsan.rl.evaluation import episode_seed, evaluate_policy, run_lockstep, training_evaluation_seed
@@ -20,16 +21,12 @@ from ilcsan.rl.rollout import TrainingEnvironments
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import Trainer
 from ilcsan.runs.checkpoint import (
-    agent_state,
     finish_interrupted_commit,
-    load_agent,
     open_for_training,
-    slice_optimizer,
     slice_params,
     write_together,
 )
 from ilcsan.runs.directory import RunDirectory
-from ilcsan.runs.policy import load
 
 
 # ------------------------------------------------------------------------------------------------ lock
@@ -79,24 +76,25 @@ def test_a_seeds_slice_is_its_own_rows_and_its_twin_critics():
         assert torch.equal(actor[name], param.detach()[1:2])
     for name, param in agent.critic.named_parameters():
         assert torch.equal(critic[name], param.detach()[2:4])
-    moments = slice_optimizer(agent.critic_optimizer, agent.critic, 2, 2)
-    name, param = next(iter(agent.critic.named_parameters()))
-    assert torch.equal(moments[name]["exp_avg"], agent.critic_optimizer.state[param]["exp_avg"][4:6])
+    moments = agent.critic_adam.seed_state(2, 2)
+    name = agent.critic_adam.names[0]
+    assert torch.equal(moments[name]["exp_avg"], agent.critic_adam.averages[0][4:6])
+    assert moments[name]["exp_avg"].abs().sum() > 0 and float(moments[name]["step"]) == 2.0
 
 
 def test_seed_states_stack_back_into_an_ensemble_in_any_order():
     trained = _agent((0, 1))
     _train_once(trained)
-    states = [dict(agent_state(trained, index), updates=trained.updates) for index in (1, 0)]
+    states = [trained.seed_state(index) for index in (1, 0)]
     swapped = _agent((1, 0))
-    load_agent(swapped, states)
+    swapped.load_seed_states(states)
     assert swapped.updates == trained.updates
     for (name, mine), (_, theirs) in zip(swapped.critic.named_parameters(), trained.critic.named_parameters(),
                                          strict=True):
         assert torch.equal(mine[:2], theirs[2:]) and torch.equal(mine[2:], theirs[:2]), name
     other = TD3Agent(actor_config("ilc-san", hidden=(4, 4)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], (0, 1))
     with pytest.raises(UserError, match="has shape"):
-        load_agent(other, states)
+        other.load_seed_states(states)
 
 
 # ------------------------------------------------------------------------------ two-phase commit
@@ -293,7 +291,7 @@ def test_a_checkpoint_rebuilds_its_policy_without_an_environment(trained_run, tm
 
 
 def test_a_training_process_flushes_denormal_floats_to_zero_and_gives_the_setting_back(tmp_path):
-    from ilcsan.rl.settings import denormals_flushed, flush_denormals
+    from ilcsan.compute.process import denormals_flushed, flush_denormals
 
     flush_denormals(False)
     denormal = torch.full((1000,), 1e-39)  # below float32's smallest normal, 1.18e-38
@@ -312,7 +310,7 @@ def test_a_training_process_flushes_denormal_floats_to_zero_and_gives_the_settin
 
 def test_threads_started_after_the_flush_flush_denormals_too():
     code = ("import torch\n"
-            "from ilcsan.rl.settings import flush_denormals\n"
+            "from ilcsan.compute.process import flush_denormals\n"
             "assert flush_denormals()\n"
             "torch.set_num_threads(2)\n"
             "x = torch.full((400_000,), 1e-39)\n"

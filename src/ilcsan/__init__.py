@@ -15,9 +15,9 @@ __version__ = "0.1.0"
 
 
 def load(path, compile=False):
-    """Load a trained actor (run directory, policy.pt or checkpoint.pt) as a :class:`~ilcsan.runs.policy.Policy`;
-    ``compile=True`` makes its ``predict`` run compiled programs (:meth:`~ilcsan.runs.policy.Policy.compile`)."""
-    from .runs.policy import load as load_policy
+    """Load a trained actor (run directory, policy.pt or checkpoint.pt) as a :class:`~ilcsan.deploy.policy.Policy`;
+    ``compile=True`` makes its ``predict`` run compiled programs (:meth:`~ilcsan.deploy.policy.Policy.compile`)."""
+    from .deploy.policy import load as load_policy
 
     return load_policy(path, compile=compile)
 

@@ -39,23 +39,28 @@ NETWORKS: tuple[str, ...] = ("spiking", "deep")
 ENGINES: tuple[str, ...] = ("fast", "reference")
 """The actor's forward passes: layer-major (fast, default) and the literal Algorithm-1 time loop (reference)."""
 COMPILE_MODES: tuple[str, ...] = ("auto", "on", "off")
+COMPILE_PAYS_AFTER_UPDATES: dict[str, int] = {"spiking": 4_000, "deep": 25_000}
+"""``--compile auto`` compiles a run with at least this many TD3 updates (steps − update_after), by network: compiling
+the update program and the acting pass costs tens of seconds once (less when inductor's cache holds them) and then
+saves most of each update's time, so it repays itself after a few thousand updates of a spiking actor, and after more
+of DAN's much cheaper ones (``benchmarks/RESULTS.md`` has the measurements behind these thresholds)."""
 # --matmul: "bf16" computes in bfloat16 (float32 accumulation) the products that run faster so, measured at the
-# start of a run (AMX / AVX512-BF16 CPUs; ilcsan.snn.matmul), and on CUDA lets torch use TF32/bf16 tensor cores.
+# start of a run (AMX / AVX512-BF16 CPUs; ilcsan.compute.matmul), and on CUDA lets torch use TF32/bf16 tensor cores.
 # Neuron states, spikes, losses and optimiser stay float32 either way.
 MATMUL_CHOICES: tuple[str, ...] = ("float32", "bf16")
 TARGET_ACTOR_PAPERS: dict[str, str] = {
     "spiking": "the soft-updated copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
     "proxy": "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)",
 }
-"""The actor in TD3's target values (``--target-actor``), each with its paper."""
-TARGET_ACTORS: tuple[str, ...] = tuple(TARGET_ACTOR_PAPERS)
+"""The actor in TD3's target values (``--target-actor``), each with its paper; a registered method
+(:func:`ilcsan.rl.methods.register_target_actor`) adds itself."""
 EXPLORATION_PAPERS: dict[str, str] = {
     "gaussian": "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
     "noisy": "NoisySAN: coloured noise in every spiking layer's charge and spike transmission and in the decoder, "
              "with a learned decoder noise scale (Chen et al., arXiv 2403.04162)",
 }
-"""How the actor explores during training (``--exploration``), each with its paper; evaluation is deterministic."""
-EXPLORATIONS: tuple[str, ...] = tuple(EXPLORATION_PAPERS)
+"""How the actor explores during training (``--exploration``), each with its paper; evaluation is deterministic. A
+registered method (:func:`ilcsan.rl.methods.register_exploration`) adds itself."""
 NOISY_RETURN_REFERENCE: dict[str, float] = {
     "Ant": 6000.0, "HalfCheetah": 12000.0, "Hopper": 4000.0, "Walker2d": 6000.0, "Humanoid": 6000.0,
     "HumanoidStandup": 180000.0, "InvertedDoublePendulum": 10000.0, "BipedalWalker": 320.0,
@@ -315,13 +320,13 @@ class TD3Config:
                                     "as in the authors' code", minimum=1)
     target_actor: str = setting("spiking", "actor in TD3's target values: the soft-updated spiking target (the paper), "
                                            "or Proxy Target's continuous proxy imitating the online actor (Xu et al. "
-                                           "2025; spiking actors only)", choices=TARGET_ACTORS)
+                                           "2025; spiking actors only)", choices=TARGET_ACTOR_PAPERS)
     proxy_iterations: int = setting(3, "Proxy Target: regression steps of the proxy per TD3 update (K; 1 with "
                                        "--proxy-lr 3e-3 is the cheap setting)", minimum=1)
     proxy_lr: float = setting(1e-3, "Proxy Target: the proxy's Adam learning rate", bounds="positive")
     exploration: str = setting("gaussian", "how the actor explores: TD3's Gaussian action noise (the paper), or "
                                            "NoisySAN's coloured noise inside the spiking neurons (Chen et al. "
-                                           "2024; spiking actors only)", choices=EXPLORATIONS)
+                                           "2024; spiking actors only)", choices=EXPLORATION_PAPERS)
     noisy_sigma: float = setting(0.5, "NoisySAN: sigma_init; a layer of D neurons gets the fixed noise scale "
                                       "sigma_init/sqrt(D) on charge and transmission, the decoder's learned "
                                       "scale starts at sigma_init/sqrt(M)", bounds="positive")
@@ -372,21 +377,29 @@ class RunConfig:
                                   "time loop of Algorithm 1)", choices=ENGINES)
     threads: int | None = setting(None, "torch threads (default: torch's own; use 1 when several runs share the "
                                         "cores)", minimum=1)
-    compile: str = setting("auto", "run each TD3 update as one compiled program (and a spiking actor's acting "
-                                   "pass compiled); auto: on when the run has enough updates to repay the 10-50 s "
-                                   "of compiling (4000 for spiking actors, 25000 for DAN)", choices=COMPILE_MODES)
+    compile: str = setting("auto", "run each TD3 update as one compiled program (and the actor's acting pass "
+                                   "compiled); auto: on when the run has enough updates to repay the compilation "
+                                   f"({COMPILE_PAYS_AFTER_UPDATES['spiking']} for spiking actors, "
+                                   f"{COMPILE_PAYS_AFTER_UPDATES['deep']} for DAN)", choices=COMPILE_MODES)
     matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
                                      "matrix shapes, measured at start (printed, and kept in config.json); bf16: "
                                      "operands and products rounded to bfloat16 for the product shapes it computes "
                                      "faster on this CPU (AMX/AVX512-BF16), timed at start, float32 for the rest "
-                                     "(TF32/bf16 on CUDA); on an Intel Xeon with AMX 1.2-1.6x per training step",
-                          choices=MATMUL_CHOICES)
+                                     "(TF32/bf16 on CUDA)", choices=MATMUL_CHOICES)
     checkpoint_minutes: float = setting(10.0, "also checkpoint after this many minutes of training since the last "
                                               "checkpoint, between evaluations (0: at evaluations only), so that an "
                                               "interrupted run loses at most that much", bounds="non-negative")
     label: str | None = None  # row label in reports (default: the preset)
     table: str | None = None  # set by `ilcsan reproduce`
     row: str | None = None  # set by `ilcsan reproduce`
+
+    def compiles(self) -> bool:
+        """Whether the run compiles: when asked, or (auto) when it has enough updates to repay the compilation
+        (:data:`COMPILE_PAYS_AFTER_UPDATES`); the reference engine (the literal Algorithm 1 oracle) stays eager."""
+        if self.compile == "auto":
+            updates = max(0, self.steps - self.td3.update_after)
+            return self.engine == "fast" and updates >= COMPILE_PAYS_AFTER_UPDATES[self.actor.network]
+        return self.compile == "on"
 
     def for_seed(self, seed: int) -> dict[str, Any]:
         """The config.json of one seed's run."""

@@ -46,8 +46,8 @@ def _print_results(results: list[dict[str, Any]], out: Path) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from ..deploy.policy import load
     from ..rl.evaluation import evaluate_policy
-    from ..runs.policy import load
 
     policy = load(args.run)
     returns, lengths = evaluate_policy(policy, episodes=args.episodes, seed=args.seed, task=args.task)

@@ -50,7 +50,7 @@ def cmd_reproduce(args) -> int:
     check_backend_options(args.backend, args.address)
     spec, layout = table_to_reproduce(args.table)
     grid = expand_grid(spec, args.out, options_from_args(args), layout)
-    from ..rl.settings import validate_run
+    from ..rl.validation import validate_run
     from ..runs.directory import RunDirectory
 
     if grid.runs:  # a bad --matmul: one line before any worker starts (devices are checked by the workers)

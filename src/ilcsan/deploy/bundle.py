@@ -37,7 +37,7 @@ import numpy as np
 
 from ..config import INTRA_MASKS, ActorConfig
 from ..files import atomic_savez
-from ..runs.policy import Policy
+from .policy import Policy
 from .runtime import CONFIG_META_KEYS
 
 WEIGHTS = ("float32", "int8")

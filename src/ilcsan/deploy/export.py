@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import UserError
-from ..runs.policy import load
 from .bundle import WEIGHTS, export_npz
+from .policy import load
 
 FORMATS = ("npz", "nir")
 

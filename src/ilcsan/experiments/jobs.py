@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 from ..config import RunConfig
 from ..errors import TrainingDiverged, UserError
-from ..rl.memory import physical_memory, replay_bytes
+from ..rl.ram import physical_memory, replay_bytes
 from ..rl.tasks import TASK_SPECS, make_env
 from ..rl.training import train
 from ..runs.checkpoint import RESUME_SETTINGS

@@ -26,32 +26,25 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..compute.process import ProcessSettings, apply_to_process
 from ..config import RunConfig
 from ..errors import TrainingDiverged
-from ..runs.checkpoint import TrainingCheckpoints, open_for_training
+from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
 from ..runs.directory import RunDirectory, run_directories
-from ..snn.diagnostics import SATURATION, diagnose_actor
+from ..snn.diagnostics import DIAGNOSTIC_STATES, SATURATION, diagnose_actor
 from .callbacks import Callbacks, ProgressReport, TensorBoardLog
 from .evaluation import run_lockstep, training_evaluation_seed
-from .memory import check_memory
+from .matmul_choice import choose_matmul_path, describe_matmul_choice
 from .normalizer import RunningNormalizer
+from .ram import check_memory
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
-from .settings import (
-    ProcessSettings,
-    apply_to_process,
-    choose_matmul_path,
-    describe_matmul_choice,
-    use_compile,
-    validate_run,
-)
 from .tasks import make_envs
 from .td3 import TD3Agent
+from .validation import validate_run
 
 LOSS_LIMIT = 1e12
 """A mean critic loss beyond this (or non-finite) means the run diverged."""
-DIAGNOSTIC_STATES = 1000
-"""Replayed states per seed on which each evaluation measures the actor's diagnostics."""
 DIAGNOSTIC_SALT = 7
 
 
@@ -63,25 +56,26 @@ class Trainer:
                  log=print):
         self.process_settings = ProcessSettings.now()  # given back at close()
         validate_run(config)
-        self.config = config
+        self.config, self.log = config, log
         self.directories = [RunDirectory(path) for path in run_directories(Path(out), config.seeds)]
         self.locks: list = []
         self.callbacks = Callbacks()
         self.eval_envs: list = []
         self.environments = TrainingEnvironments(config.task, config.seeds)  # the task builds: now write
         try:
-            apply_to_process(config)  # once the task builds, so that a run that cannot start changes nothing
+            apply_to_process(config.threads, config.matmul, config.device)  # once the task builds: a run that
+            # cannot start changes nothing
             for _ in config.seeds:  # appended one seed at a time: close() finds every environment built
                 self.eval_envs.append(make_envs(config.task, config.eval_episodes))
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
-            self.matmul = choose_matmul_path(config, state_dim, action_dim)
+            matmul, self.matmul = choose_matmul_path(config, state_dim, action_dim)
             log(describe_matmul_choice(self.matmul))
             self.agent = TD3Agent(config.actor, config.td3, state_dim, action_dim, self.environments.action_scale,
                                   self.environments.action_offset, config.seeds, config.device,
-                                  compile=use_compile(config), engine=config.engine, task=config.task,
-                                  episode_steps=self.environments.episode_steps)
+                                  compile=config.compiles(), engine=config.engine, task=config.task,
+                                  episode_steps=self.environments.episode_steps, matmul=matmul)
             self.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim,
                                        min(config.td3.replay_size, config.steps))
             self.normalizer = RunningNormalizer(len(config.seeds), state_dim)
@@ -90,7 +84,7 @@ class Trainer:
             self.evaluations: list[list[dict[str, float]]] = [[] for _ in config.seeds]
             self.checkpoints = TrainingCheckpoints(self.directories, log)
             if resumable:
-                self.checkpoints.restore(self)
+                self.checkpoints.restore(self, config, state_dim, action_dim)
             else:
                 self._start()
             self.callbacks = Callbacks(TensorBoardLog([d.tensorboard_folder() for d in self.directories], self.step),
@@ -143,8 +137,7 @@ class Trainer:
         self.normalizer.update(transition.next_obs)
         for index in finished:
             self.environments.reset(index, step=self.step + 1)
-            if self.agent.exploration is not None:
-                self.agent.exploration.end_episode(index)
+            self.agent.exploration.end_episode(index)
             self.normalizer.update(self.environments.observations, mask=np.arange(len(self.environments)) == index)
         self.step += 1
         if self.step >= td3.update_after and self.step % td3.update_every == 0:
@@ -152,17 +145,12 @@ class Trainer:
         return None
 
     def _explore(self) -> np.ndarray:
-        """Uniform random actions during the first start_steps, then π(s) + N(0, σ²) clipped to the bounds — or,
-        with NoisySAN, π(s; ε) with the noise in the actor's neurons."""
-        scale, offset = self.environments.action_scale, self.environments.action_offset
-        low, high = offset - scale, offset + scale
+        """Uniform random actions during the first start_steps, then the exploration method's (TD3's: π(s) + N(0, σ²)
+        clipped to the bounds; :mod:`ilcsan.rl.methods`)."""
         if self.step < self.config.td3.start_steps:
-            return np.stack([rng.uniform(low, high) for rng in self.rngs])
-        if self.agent.exploration is not None:
-            return self.agent.explore(self.normalizer.normalize(self.environments.observations))
-        action = self._act(self.environments.observations)
-        noise = np.stack([rng.standard_normal(self.environments.action_dim) for rng in self.rngs])
-        return np.clip(action + noise * self.config.td3.exploration_noise * scale, low, high)
+            scale, offset = self.environments.action_scale, self.environments.action_offset
+            return np.stack([rng.uniform(offset - scale, offset + scale) for rng in self.rngs])
+        return self.agent.explore(self.normalizer.normalize(self.environments.observations), self.rngs)
 
     def _act(self, observations: np.ndarray) -> np.ndarray:
         """The deterministic actions π(s) of the K seeds for their raw observations, (K, N) → (K, M) or
@@ -175,10 +163,10 @@ class Trainer:
         """update_every TD3 updates, each on a fresh minibatch per seed; returns the mean losses per seed."""
         td3 = self.config.td3
         critic_total, actor_total, actor_count = 0.0, 0.0, 0
-        if self.agent.exploration is not None:
-            self.agent.exploration.set_returns(self.evaluations)
+        self.agent.exploration.before_updates(self.evaluations)
         for _ in range(td3.update_every):
             arrays = sample_minibatch(self.replay, self.normalizer, self.rngs, td3)
+            arrays.update(self.agent.target.extra_samples(self.replay, self.normalizer, self.rngs, td3))
             losses = self.agent.update(self.agent.to_batch(arrays))
             critic_total = critic_total + losses["critic_loss"]
             if losses["actor_loss"] is not None:
@@ -223,7 +211,8 @@ class Trainer:
             improved = all(row["eval_return_mean"] > old["eval_return_mean"] for old in self.evaluations[index])
             self.evaluations[index].append(row)
             if improved:
-                self.checkpoints.save_policy(self, index, row["eval_return_mean"])
+                self.checkpoints.save_policy(index, {**self.policy_state(index),
+                                                     "eval_return_mean": row["eval_return_mean"]}, self.step)
         self._write_checkpoints()
         self.callbacks.evaluated(self, rows, speed, losses)
 
@@ -235,9 +224,52 @@ class Trainer:
         return [seed_result(self.config, index, directory.path, self.evaluations[index], self.step, self.wall_seconds)
                 for index, directory in enumerate(self.directories)]
 
+    # --------------------------------------------------------------------------- checkpoints
+    def seed_state(self, index: int, segments: list[str]) -> dict[str, Any]:
+        """Everything seed ``index`` needs to resume exactly (with ``segments``, its replay so far), and to rebuild its
+        policy without an environment: the checkpoint's layout."""
+        config, environments = self.config, self.environments
+        agent = self.agent.seed_state(index)
+        noise = agent.pop("noise_generator")
+        return {
+            "config": config.for_seed(config.seeds[index]), "state_dim": environments.state_dim,
+            "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
+            "action_offset": torch.as_tensor(environments.action_offset), "step": self.step,
+            "wall_seconds": self.wall_seconds, **agent,
+            "normalizer": as_tensors(self.normalizer.state(index)),
+            "replay": {"total": self.replay.total, "capacity": self.replay.capacity, "segments": list(segments)},
+            "rng": {"numpy": self.rngs[index].bit_generator.state, "noise": noise},
+            "env": as_tensors(environments.snapshot(index)), "evaluations": self.evaluations[index],
+        }
+
+    def load_seed_states(self, states: list[dict[str, Any]]) -> None:
+        """Continue from the seeds' checkpoints (:meth:`seed_state`; the replay is the checkpoints' to rebuild)."""
+        self.agent.load_seed_states([{**state, "noise_generator": state["rng"]["noise"]} for state in states])
+        self.step, self.wall_seconds = states[0]["step"], float(states[0]["wall_seconds"])
+        for index, state in enumerate(states):
+            self.normalizer.load(index, as_arrays(state["normalizer"]))
+            self.rngs[index].bit_generator.state = state["rng"]["numpy"]
+            self.evaluations[index] = list(state["evaluations"])
+            if not self.environments.restore(index, as_arrays(state["env"]), self.step):
+                self.agent.exploration.end_episode(index)  # a new episode (NoisySAN: with a new noise series)
+                self.log(f"note: {self.config.task} cannot restore a running episode; seed {self.config.seeds[index]} "
+                         "resumes with a new episode (not bit-identical)")
+
+    def policy_state(self, index: int) -> dict[str, Any]:
+        """The deployable actor of seed ``index``: weights, config, frozen normaliser, action bounds."""
+        config, environments, normalizer = self.config, self.environments, self.normalizer
+        return {
+            "task": config.task, "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
+            "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
+            "action_offset": torch.as_tensor(environments.action_offset),
+            "actor": slice_params(self.agent.actor, index, 1),
+            "obs_mean": torch.as_tensor(normalizer.mean[index]), "obs_std": torch.as_tensor(normalizer.std[index]),
+            "obs_clip": float(normalizer.clip), "step": self.step, "seed": config.seeds[index],
+        }
+
     def close(self) -> None:
         """Close the reporters, environments and locks, and give the process the settings the run changed back
-        (:class:`~ilcsan.rl.settings.ProcessSettings`; safe to call twice)."""
+        (:class:`~ilcsan.compute.process.ProcessSettings`; safe to call twice)."""
         self.process_settings.restore()
         self.callbacks.close()
         for env in (env for row in self.eval_envs for env in row):
@@ -295,14 +327,10 @@ class TrainingClock:
 
 def sample_minibatch(replay: ReplayBuffer, normalizer: RunningNormalizer, rngs: list[np.random.Generator],
                      td3) -> dict[str, np.ndarray]:
-    """One minibatch per seed with normalised states; with Proxy Target also a fresh minibatch of states per
-    regression step (``proxy_obs``, (iterations, K, B, N))."""
+    """One minibatch per seed with normalised states."""
     arrays = replay.sample(rngs, td3.batch_size)
     arrays["obs"] = normalizer.normalize(arrays["obs"])
     arrays["next_obs"] = normalizer.normalize(arrays["next_obs"])
-    if td3.target_actor == "proxy":
-        arrays["proxy_obs"] = np.stack([normalizer.normalize(replay.sample_states(rngs, td3.batch_size))
-                                        for _ in range(td3.proxy_iterations)])
     return arrays
 
 

@@ -1,5 +1,9 @@
 """Checkpoints of a training run: per-seed files cut from the stacked ensemble, written together, restored.
 
+The run and its parts give and take their own state (``seed_state``/``load_seed_states``); this module owns the files:
+where they go, the checks a checkpoint must pass to resume, the per-seed slicing helpers the parts use
+(:func:`slice_params`, :func:`load_params`), and the two-phase commit.
+
 K seeds train in stacked weights (:mod:`ilcsan.rl.td3`), but each seed's folder holds an ordinary
 one-seed checkpoint: its slice of every weight and of Adam's moments (the critic's slices are twice as
 wide: seed k owns twins 2k and 2k+1), its normaliser, replay segments, random generators and running
@@ -13,7 +17,7 @@ between is completed or undone by :func:`finish_interrupted_commit` on resume.
 from __future__ import annotations
 
 import contextlib
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -52,76 +56,6 @@ def load_params(module: torch.nn.Module, slices: list[dict[str, torch.Tensor]], 
                 raise UserError(f"the checkpoint's {what} {name!r} has shape {tuple(stacked.shape)}, this run "
                                 f"needs {tuple(param.shape)}: it belongs to another actor or task")
             param.copy_(stacked)
-
-
-def slice_optimizer(optimizer: torch.optim.Optimizer, module: torch.nn.Module, index: int,
-                    factor: int) -> dict[str, dict[str, torch.Tensor]]:
-    """Seed ``index``'s slice of the optimizer state of ``module``'s parameters (scalars such as Adam's
-    step count are shared by all seeds and kept whole)."""
-    state = {}
-    for name, param in module.named_parameters():
-        entry = optimizer.state.get(param)
-        if not entry:
-            continue
-        state[name] = {key: (value.detach().cpu().clone() if value.dim() == 0
-                             else value.detach()[factor * index: factor * (index + 1)].cpu().clone())
-                       for key, value in entry.items()}
-    return state
-
-
-def load_optimizer(optimizer: torch.optim.Optimizer, module: torch.nn.Module,
-                   slices: list[dict[str, dict[str, torch.Tensor]]]) -> None:
-    """Stack the seeds' optimizer ``slices`` (of :func:`slice_optimizer`) back into ``optimizer``."""
-    for name, param in module.named_parameters():
-        if not all(name in per_seed for per_seed in slices):
-            continue
-        entry = {}
-        for key, value in slices[0][name].items():
-            if value.dim() == 0:
-                entry[key] = value.clone()
-            else:
-                entry[key] = torch.cat([per_seed[name][key] for per_seed in slices]).to(param.device)
-                if entry[key].shape != param.shape:
-                    raise UserError(f"the checkpoint's optimizer state {name!r} has shape {tuple(entry[key].shape)}, "
-                                    f"this run needs {tuple(param.shape)}: it belongs to another actor or task")
-        optimizer.state[param] = entry
-
-
-AGENT_PARTS = (("actor", "actor", 1), ("actor_target", "target actor (Proxy Target: the proxy)", 1),
-               ("critic", "critic", 2), ("critic_target", "target critic", 2))
-"""(attribute of the agent and key of the checkpoint, what it is called in errors, rows per seed)."""
-
-
-def agent_state(agent: Any, index: int) -> dict[str, Any]:
-    """Seed ``index``'s networks, targets and optimizer states."""
-    state = {key: slice_params(getattr(agent, key), index, factor) for key, _, factor in AGENT_PARTS}
-    state["actor_optimizer"] = slice_optimizer(agent.actor_optimizer, agent.actor, index, 1)
-    state["critic_optimizer"] = slice_optimizer(agent.critic_optimizer, agent.critic, index, 2)
-    if agent.proxy is not None:  # Proxy Target: the proxy is the "actor_target" above, here its optimizer
-        state["proxy_optimizer"] = slice_optimizer(agent.proxy.optimizer, agent.proxy.actor, index, 1)
-    exploration = agent.exploration
-    if exploration is not None:  # NoisySAN: σ_d, its optimizer and the noise streams
-        state["exploration"] = {"parameters": slice_params(exploration, index, 1),
-                                "optimizer": slice_optimizer(exploration.optimizer, exploration, index, 1),
-                                "streams": exploration.stream_state(index)}
-    return state
-
-
-def load_agent(agent: Any, states: list[dict[str, Any]]) -> None:
-    """Stack the seeds' checkpoints ``states`` into ``agent`` (its seeds in the same order)."""
-    for key, what, _ in AGENT_PARTS:
-        load_params(getattr(agent, key), [state[key] for state in states], what)
-    load_optimizer(agent.actor_optimizer, agent.actor, [state["actor_optimizer"] for state in states])
-    load_optimizer(agent.critic_optimizer, agent.critic, [state["critic_optimizer"] for state in states])
-    if agent.proxy is not None:
-        load_optimizer(agent.proxy.optimizer, agent.proxy.actor, [state["proxy_optimizer"] for state in states])
-    exploration = agent.exploration
-    if exploration is not None:
-        load_params(exploration, [state["exploration"]["parameters"] for state in states], "decoder noise scale")
-        load_optimizer(exploration.optimizer, exploration, [state["exploration"]["optimizer"] for state in states])
-        for index, state in enumerate(states):
-            exploration.load_stream_state(index, state["exploration"]["streams"])
-    agent.updates = states[0]["updates"]
 
 
 def as_tensors(values: dict[str, Any]) -> dict[str, Any]:
@@ -225,46 +159,30 @@ def check_resumable(directory: RunDirectory, state: dict[str, Any], config: RunC
                         f"give --steps {state['step']} or more")
 
 
-# ------------------------------------------------------------------------- a trainer's state
-def policy_state(trainer: Any, index: int) -> dict[str, Any]:
-    """The deployable actor of seed ``index``: weights, config, frozen normaliser, action bounds."""
-    config, environments, normalizer = trainer.config, trainer.environments, trainer.normalizer
-    return {
-        "format": POLICY_FORMAT, "version": FORMAT_VERSION, "task": config.task,
-        "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
-        "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
-        "action_offset": torch.as_tensor(environments.action_offset),
-        "actor": slice_params(trainer.agent.actor, index, 1),
-        "obs_mean": torch.as_tensor(normalizer.mean[index]), "obs_std": torch.as_tensor(normalizer.std[index]),
-        "obs_clip": float(normalizer.clip), "step": trainer.step, "seed": config.seeds[index],
-    }
+# ------------------------------------------------------------------------------- the run's side
+class CheckpointedRun(Protocol):
+    """What :class:`TrainingCheckpoints` needs of a training run: it gives and takes each seed's state itself."""
 
+    step: int
+    replay: Any
+    """The replay buffer: ``write_segment(directory, index, start)`` and ``load_segments(directory, index, names,
+    total)`` (:class:`~ilcsan.rl.replay.ReplayBuffer`)."""
+    evaluations: list[list[dict[str, float]]]
 
-def checkpoint_state(trainer: Any, index: int, segments: list[str]) -> dict[str, Any]:
-    """Everything seed ``index`` needs to resume exactly, and to rebuild its policy without an environment."""
-    config, environments, agent = trainer.config, trainer.environments, trainer.agent
-    return {
-        "format": CHECKPOINT_FORMAT, "version": FORMAT_VERSION, "config": config.for_seed(config.seeds[index]),
-        "state_dim": environments.state_dim, "action_dim": environments.action_dim,
-        "action_scale": torch.as_tensor(environments.action_scale),
-        "action_offset": torch.as_tensor(environments.action_offset),
-        "step": trainer.step, "updates": agent.updates, "wall_seconds": trainer.wall_seconds,
-        **agent_state(agent, index),
-        "normalizer": as_tensors(trainer.normalizer.state(index)),
-        "replay": {"total": trainer.replay.total, "capacity": trainer.replay.capacity, "segments": list(segments)},
-        "rng": {"numpy": trainer.rngs[index].bit_generator.state, "noise": agent.noise_generators[index].get_state()},
-        "env": as_tensors(environments.snapshot(index)),
-        "evaluations": trainer.evaluations[index],
-    }
+    def seed_state(self, index: int, segments: list[str]) -> dict[str, Any]:
+        """Everything seed ``index`` needs to resume exactly, ``segments`` its replay segments so far."""
+
+    def load_seed_states(self, states: list[dict[str, Any]]) -> None:
+        """Continue from the seeds' checkpoints (already checked), replay excepted."""
+
+    def results(self) -> list[dict[str, Any]]:
+        """Each seed's result.json (with its ``directory``)."""
 
 
 class TrainingCheckpoints:
-    """Saves and restores a trainer's seeds, one :class:`RunDirectory` each: checkpoints, replay segments,
-    metrics, results and the best policy.
-
-    ``trainer`` is the :class:`~ilcsan.rl.training.Trainer` being saved or restored (its ``config``,
-    ``step``, ``wall_seconds``, ``agent``, ``replay``, ``normalizer``, ``rngs``, ``environments`` and
-    ``evaluations``)."""
+    """Saves and restores a run's seeds, one :class:`RunDirectory` each: checkpoints (two-phase commit), replay
+    segments, metrics, results and the best policy. The run (:class:`CheckpointedRun`) gives and takes its own state;
+    this class owns the files."""
 
     def __init__(self, directories: list[RunDirectory], log=print):
         self.directories, self.log = directories, log
@@ -285,38 +203,37 @@ class TrainingCheckpoints:
         for directory in self.directories:
             directory.write_budget(config.steps)
 
-    def save(self, trainer: Any) -> None:
+    def save(self, run: CheckpointedRun) -> None:
         """Segments, metrics, then the checkpoints (committed together), then result.json: a crash anywhere
         keeps the previous checkpoint, and result.json never says "finished" before the final checkpoint."""
         for index, directory in enumerate(self.directories):
-            with disk_errors(directory, trainer.step):
-                segment = trainer.replay.write_segment(directory, index, self.checkpointed_total)
+            with disk_errors(directory, run.step):
+                segment = run.replay.write_segment(directory, index, self.checkpointed_total)
                 if segment is not None:
                     self.segments[index].append(segment)
-                directory.write_metrics(trainer.evaluations[index])
-        states = [checkpoint_state(trainer, index, self.segments[index]) for index in range(len(self.directories))]
-        write_together(self.directories, states, trainer.step)
-        self.write_results(trainer)
+                directory.write_metrics(run.evaluations[index])
+        states = [{"format": CHECKPOINT_FORMAT, "version": FORMAT_VERSION, **run.seed_state(index, segments)}
+                  for index, segments in enumerate(self.segments)]
+        write_together(self.directories, states, run.step)
+        self.write_results(run)
         for directory, segments in zip(self.directories, self.segments, strict=True):
             directory.prune_replay_segments(segments)
-        self.checkpointed_total = trainer.replay.total
+        self.checkpointed_total = run.replay.total
 
-    def save_policy(self, trainer: Any, index: int, eval_return_mean: float) -> None:
-        """Seed ``index``'s actor as ``policy.pt`` (after an evaluation better than all before)."""
-        state = policy_state(trainer, index)
-        state["eval_return_mean"] = eval_return_mean
-        with disk_errors(self.directories[index], trainer.step):
-            self.directories[index].write_policy(state)
+    def save_policy(self, index: int, state: dict[str, Any], step: int) -> None:
+        """Seed ``index``'s deployable actor as ``policy.pt`` (after an evaluation better than all before)."""
+        with disk_errors(self.directories[index], step):
+            self.directories[index].write_policy({"format": POLICY_FORMAT, "version": FORMAT_VERSION, **state})
 
-    def write_results(self, trainer: Any) -> None:
-        for directory, result in zip(self.directories, trainer.results(), strict=True):
-            with disk_errors(directory, trainer.step):
+    def write_results(self, run: CheckpointedRun) -> None:
+        for directory, result in zip(self.directories, run.results(), strict=True):
+            with disk_errors(directory, run.step):
                 directory.write_result({key: value for key, value in result.items() if key != "directory"})
 
-    def restore(self, trainer: Any) -> None:
-        """Continue ``trainer`` from its folders' checkpoints; anything wrong with them is one line."""
+    def restore(self, run: CheckpointedRun, config: RunConfig, state_dim: int, action_dim: int) -> None:
+        """Continue ``run`` from its folders' checkpoints; anything wrong with them is one line."""
         try:
-            self._restore(trainer)
+            self._restore(run, config, state_dim, action_dim)
         except UserError:
             raise
         except (KeyError, TypeError, ValueError, AttributeError, IndexError, RuntimeError) as error:
@@ -325,32 +242,22 @@ class TrainingCheckpoints:
                             f"({type(error).__name__}: {str(error)[:120]}); start again without --resume, or "
                             "choose another --out") from None
 
-    def _restore(self, trainer: Any) -> None:
-        environments = trainer.environments
+    def _restore(self, run: CheckpointedRun, config: RunConfig, state_dim: int, action_dim: int) -> None:
         states = [directory.read_checkpoint() for directory in self.directories]
         for directory, state in zip(self.directories, states, strict=True):
-            check_resumable(directory, state, trainer.config, environments.state_dim, environments.action_dim)
+            check_resumable(directory, state, config, state_dim, action_dim)
         steps = {state["step"] for state in states}
         if len(steps) != 1:
             raise UserError(f"the seeds' checkpoints are at different steps ({sorted(steps)}); resume them one by one")
-        self._record_budget(trainer.config, RunConfig.from_dict(states[0]["config"]).steps)
-        load_agent(trainer.agent, states)
-        trainer.step, trainer.wall_seconds = states[0]["step"], float(states[0]["wall_seconds"])
+        self._record_budget(config, RunConfig.from_dict(states[0]["config"]).steps)
         for index, (directory, state) in enumerate(zip(self.directories, states, strict=True)):
-            trainer.normalizer.load(index, as_arrays(state["normalizer"]))
             self.segments[index] = list(state["replay"]["segments"])
-            trainer.replay.load_segments(directory, index, self.segments[index], state["replay"]["total"])
+            run.replay.load_segments(directory, index, self.segments[index], state["replay"]["total"])
             directory.prune_replay_segments(self.segments[index])
-            trainer.rngs[index].bit_generator.state = state["rng"]["numpy"]
-            trainer.agent.noise_generators[index].set_state(state["rng"]["noise"])
-            trainer.evaluations[index] = list(state["evaluations"])
-            directory.write_metrics(trainer.evaluations[index])
-            if not environments.restore(index, as_arrays(state["env"]), trainer.step):
-                if trainer.agent.exploration is not None:  # a new episode draws a new noise series
-                    trainer.agent.exploration.end_episode(index)
-                self.log(f"note: {trainer.config.task} cannot restore a running episode; seed "
-                         f"{trainer.config.seeds[index]} resumes with a new episode (not bit-identical)")
-        self.write_results(trainer)  # a crash may have come between the checkpoint and its result.json
-        self.checkpointed_total = trainer.replay.total
+        run.load_seed_states(states)
+        for directory, rows in zip(self.directories, run.evaluations, strict=True):
+            directory.write_metrics(rows)
+        self.write_results(run)  # a crash may have come between the checkpoint and its result.json
+        self.checkpointed_total = run.replay.total
         where = self.directories[0].path if len(self.directories) == 1 else self.directories[0].path.parent
-        self.log(f"resumed {where} at step {trainer.step}")
+        self.log(f"resumed {where} at step {run.step}")

@@ -16,11 +16,11 @@ actions (K, B, M).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import torch
 from torch import nn
 
+from ..compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ..config import ENGINES, INTRA_MASKS, ActorConfig
 from ..errors import UserError
 from .decoders import PopulationDecoder
@@ -29,27 +29,10 @@ from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 from .intra import IntraLayerConnections
 from .neurons import neuron_model
 from .noise import NeuronNoise
+from .output import ActorOutput
+from .reference import run_reference
 
 ACTOR_SALT = 1
-
-
-class ActorOutput(NamedTuple):
-    """Everything one forward pass produced.
-
-    ``layer_inputs[l]`` is what synaptic layer l received: (K, T, B, D) spikes, or (K, B, D) for an
-    analog input that is the same at every step. ``output_spikes`` (K, T, B, M·P_out) feeds the decoder
-    (and the intra-layer connections at steps 1..T−1). ``voltages`` are the LI voltages (K, T, B, M).
-    ``readout`` is O (K, B, M), the decoder's output before tanh (DAN: its last layer's). ``membranes``
-    (K, T, B, M·P_out), only when asked for, is the potential each output neuron compared with V_th at each
-    step (H_t of Eq. (5) for CLIF): where |H_t − V_th| < w the surrogate gradient passes.
-    """
-
-    action: torch.Tensor
-    layer_inputs: tuple[torch.Tensor, ...]
-    output_spikes: torch.Tensor | None
-    voltages: torch.Tensor | None
-    readout: torch.Tensor | None = None
-    membranes: torch.Tensor | None = None
 
 
 def checked_engine(engine: str) -> str:
@@ -84,14 +67,15 @@ class SpikingActor(_Actor):
     """The spiking actor network of Fig. 2 with every ablation as a switch."""
 
     def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
-                 action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast"):
+                 action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast",
+                 matmul: MatmulPath = DEFAULT_MATMUL):
         super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
         ensemble = len(seeds)
         self.encoder = Encoder(config.encoder, ensemble, state_dim, config.population_in, config.timesteps,
                                threshold=config.enc_v_th)
         sizes = config.layer_sizes(state_dim, action_dim)
-        self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b) for a, b in zip(sizes[:-1], sizes[1:],
-                                                                                   strict=True))
+        self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b, matmul=matmul)
+                                    for a, b in zip(sizes[:-1], sizes[1:], strict=True))
         mask = INTRA_MASKS[config.intra]
         self.intra = (IntraLayerConnections(ensemble, action_dim, config.population_out, mask,
                                             bias_at_first_step=config.intra_timing == "authors")
@@ -168,8 +152,6 @@ class SpikingActor(_Actor):
         ``noise`` perturbs the neurons (NoisySAN exploration, training only); ``membranes`` records the output
         layer's potentials (:attr:`ActorOutput.membranes`, diagnostics)."""
         if checked_engine(engine or self.engine) == "reference":
-            from .reference import run_reference  # the oracle module builds on this one
-
             return run_reference(self, state, noise, membranes)
         return self._run_layer_major(state, noise, membranes)
 
@@ -189,9 +171,10 @@ class DeepActor(_Actor):
     """
 
     def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
-                 action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast"):
+                 action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast",
+                 matmul: MatmulPath = DEFAULT_MATMUL):
         super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
-        self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim))
+        self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim), matmul)
         self.mlp.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def run(self, state: torch.Tensor, engine: str | None = None, membranes: bool = False) -> ActorOutput:
@@ -205,9 +188,9 @@ class DeepActor(_Actor):
 
 def build_actor(config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
                 action_offset: Sequence[float] | None = None, seeds: Sequence[int] = (0,),
-                engine: str = "fast") -> SpikingActor | DeepActor:
+                engine: str = "fast", matmul: MatmulPath = DEFAULT_MATMUL) -> SpikingActor | DeepActor:
     """The actor ``config`` describes, for K = len(seeds) seeds, each initialised from its seed; ``engine``
-    ('fast' or 'reference', :data:`ilcsan.config.ENGINES`) is its forward pass."""
+    ('fast' or 'reference', :data:`ilcsan.config.ENGINES`) is its forward pass, ``matmul`` where its products run."""
     action_offset = [0.0] * action_dim if action_offset is None else action_offset
     cls = DeepActor if config.network == "deep" else SpikingActor
-    return cls(config, state_dim, action_dim, action_scale, action_offset, seeds, engine)
+    return cls(config, state_dim, action_dim, action_scale, action_offset, seeds, engine, matmul)

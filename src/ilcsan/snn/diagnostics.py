@@ -25,11 +25,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import torch
 
-from .actor import ActorOutput
+from .output import ActorOutput
 
 DIAGNOSTICS: tuple[str, ...] = ("saturated_actions", "frozen_output_neurons", "surrogate_active",
                                 "mean_abs_preaction")
 """The diagnostic columns of ``metrics.csv``, in order."""
+DIAGNOSTIC_STATES = 1000
+"""Replayed states per seed on which each evaluation measures the replay-batch diagnostics."""
 SATURATION = 0.99
 """An action component is saturated when |tanh(O)| exceeds this."""
 CONSTANT_SATURATED_SHARE = 0.99
@@ -79,7 +81,7 @@ STUCK_EVALUATIONS = 3
 def is_stuck(rows: Sequence[Mapping[str, float]], start_steps: int) -> bool:
     """Whether the last :data:`STUCK_EVALUATIONS` evaluation rows after the random phase (step > ``start_steps``)
     each acted with one constant saturated action (:func:`constant_saturated_action`)."""
-    recent = [row for row in rows if row["step"] > start_steps][-STUCK_EVALUATIONS:]
+    recent = [row for row in rows if row.get("step", 0) > start_steps][-STUCK_EVALUATIONS:]
     return len(recent) == STUCK_EVALUATIONS and all(constant_saturated_action(row) for row in recent)
 
 

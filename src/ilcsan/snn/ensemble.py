@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from .matmul import ensemble_matmul, product_path
+from ..compute.matmul import DEFAULT_MATMUL, MatmulPath, ensemble_matmul
 
 
 def uniform_(tensor: torch.Tensor, bound: float, generators: Sequence[torch.Generator]) -> None:
@@ -26,50 +26,63 @@ def uniform_(tensor: torch.Tensor, bound: float, generators: Sequence[torch.Gene
 
 
 class _EnsembleAffine(torch.autograd.Function):
-    """y_k = x_k W_kᵀ + b_k for every ensemble member k, with the weight gradient built in W's own layout; all
-    three products run on the process's matmul path (:mod:`ilcsan.snn.matmul`).
+    """y_k = x_k W_kᵀ + b_k for every ensemble member k, with the weight gradient built in W's own layout; each of
+    the three products runs on the path its layer's :class:`~ilcsan.compute.matmul.MatmulPath` gives its shapes
+    (``paths``: forward, ∂L/∂x, ∂L/∂W).
 
     Autograd's generic rule for ``baddbmm(b, x, Wᵀ)`` produces ∂L/∂Wᵀ = xᵀ g and hands back its transpose, a
     non-contiguous view that AccumulateGrad then copies into W's layout on every backward pass. Here
     ∂L/∂W = gᵀ x is computed directly as a contiguous (K, out, in) tensor: the same numbers, one copy fewer
-    per layer (measured: most of the critic's backward time with 10 stacked seeds).
+    per layer.
     """
 
     @staticmethod
-    def forward(flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:  # noqa: D102
+    def forward(flat: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None,  # noqa: D102
+                paths: tuple[str, str, str]) -> torch.Tensor:
         if bias is None:
-            return ensemble_matmul(flat, weight)
-        if product_path(flat.shape, weight.shape) == "aten":  # the bias rides in the BLAS call
+            return ensemble_matmul(flat, weight, paths[0])
+        if paths[0] == "aten":  # the bias rides in the BLAS call
             return torch.baddbmm(bias.unsqueeze(1), flat, weight.transpose(1, 2))
-        return ensemble_matmul(flat, weight) + bias.unsqueeze(1)
+        return ensemble_matmul(flat, weight, paths[0]) + bias.unsqueeze(1)
 
     @staticmethod
     def setup_context(ctx, inputs, output) -> None:  # noqa: D102
-        flat, weight, bias = inputs
+        flat, weight, bias, paths = inputs
         ctx.save_for_backward(flat, weight)
-        ctx.has_bias = bias is not None
+        ctx.has_bias, ctx.paths = bias is not None, paths
 
     @staticmethod
     def backward(ctx, grad_output: torch.Tensor):  # noqa: D102
         # Every gradient is computed, needed or not: traced by torch.compile through torch.func.grad_and_value
         # (torch 2.13), ctx.needs_input_grad reported wrong flags and skipping on them silently dropped gradients;
-        # the update program's torch.autograd.grad tracing (update_program.value_and_grads) was not checked for it.
+        # the update program's torch.autograd.grad tracing (compute.programs.value_and_grads) was not checked for it.
         flat, weight = ctx.saved_tensors
         grad_bias = grad_output.sum(dim=1) if ctx.has_bias else None
-        grad_input = ensemble_matmul(grad_output, weight.transpose(1, 2))  # g W
-        grad_weight = ensemble_matmul(grad_output.transpose(1, 2), flat.transpose(1, 2))  # gᵀ x
-        return grad_input, grad_weight, grad_bias
+        grad_input = ensemble_matmul(grad_output, weight.transpose(1, 2), ctx.paths[1])  # g W
+        grad_weight = ensemble_matmul(grad_output.transpose(1, 2), flat.transpose(1, 2), ctx.paths[2])  # gᵀ x
+        return grad_input, grad_weight, grad_bias, None
+
+
+def affine_paths(matmul: MatmulPath, flat_shape: Sequence[int], weight_shape: Sequence[int]) -> tuple[str, str, str]:
+    """The paths of a layer's three products for input (K, R, in) and weight (K, out, in): the forward product
+    x Wᵀ, ∂L/∂x = g W (a (K, R, out) by (K, in, out) product) and ∂L/∂W = gᵀ x ((K, out, R) by (K, in, R))."""
+    k, rows, d_in = flat_shape
+    d_out = weight_shape[1]
+    return (matmul.product_path(flat_shape, weight_shape), matmul.product_path((k, rows, d_out), (k, d_in, d_out)),
+            matmul.product_path((k, d_out, rows), (k, d_in, rows)))
 
 
 class EnsembleLinear(nn.Module):
-    """K fully-connected layers y = W_k x + b_k, weight (K, out, in), bias (K, out).
+    """K fully-connected layers y = W_k x + b_k, weight (K, out, in), bias (K, out), whose products run on
+    ``matmul``.
 
     Initialised as ``torch.nn.Linear``: W, b ~ U(−1/√in, 1/√in).
     """
 
-    def __init__(self, ensemble: int, in_features: int, out_features: int, bias: bool = True):
+    def __init__(self, ensemble: int, in_features: int, out_features: int, bias: bool = True,
+                 matmul: MatmulPath = DEFAULT_MATMUL):
         super().__init__()
-        self.in_features, self.out_features = in_features, out_features
+        self.in_features, self.out_features, self.matmul = in_features, out_features, matmul
         self.weight = nn.Parameter(torch.empty(ensemble, out_features, in_features))
         self.bias = nn.Parameter(torch.empty(ensemble, out_features)) if bias else None
 
@@ -90,7 +103,7 @@ class EnsembleLinear(nn.Module):
         weight, bias = self.weight, self.bias
         if members is not None:
             weight, bias = weight[members], (bias[members] if bias is not None else None)
-        out = _EnsembleAffine.apply(flat, weight, bias)
+        out = _EnsembleAffine.apply(flat, weight, bias, affine_paths(self.matmul, flat.shape, weight.shape))
         return out.reshape(*shape[:-1], self.out_features)
 
     def extra_repr(self) -> str:
@@ -100,10 +113,11 @@ class EnsembleLinear(nn.Module):
 class EnsembleMLP(nn.Module):
     """K multilayer perceptrons with ReLU between layers (TD3's critic and deep actor)."""
 
-    def __init__(self, ensemble: int, sizes: Sequence[int]):
+    def __init__(self, ensemble: int, sizes: Sequence[int], matmul: MatmulPath = DEFAULT_MATMUL):
         super().__init__()
         self.layers = nn.ModuleList(
-            EnsembleLinear(ensemble, d_in, d_out) for d_in, d_out in zip(sizes[:-1], sizes[1:], strict=True)
+            EnsembleLinear(ensemble, d_in, d_out, matmul=matmul) for d_in, d_out in zip(sizes[:-1], sizes[1:],
+                                                                                       strict=True)
         )
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:

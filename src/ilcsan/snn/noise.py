@@ -4,7 +4,7 @@ NoisySAN perturbs a spiking actor during exploration with noise whose power spec
 β = 0 is white noise, β = 1 pink (the paper finds pink best), β = 2 brown (a random walk). One series per
 noise channel runs along time, across the T simulation steps of an action and across the steps of an episode,
 so successive steps see correlated perturbations. :class:`NeuronNoise` says where the perturbations enter the
-forward pass (:mod:`ilcsan.snn.actor`); :mod:`ilcsan.rl.noisy_exploration` draws them during training.
+forward pass (:mod:`ilcsan.snn.actor`); :mod:`ilcsan.rl.methods.noisysan` draws them during training.
 
 The series is drawn in the frequency domain (Timmer & König 1995, A&A 300, 707, the method of SpikingJelly's
 NoisySAN example): for the n-sample rfft frequencies f_j = j/n, j = 0..⌊n/2⌋, independent Gaussian real and

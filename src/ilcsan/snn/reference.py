@@ -4,9 +4,10 @@ for t = 1..T: for l = 1..L+1: X_t^l = W^l S_t^{l−1} + b^l (+ I_t on the output
 step (Eq. (1)-(3)); then the intra-layer current I_{t+1} of Eq. (10) and the decoder's LI neuron V_t
 (Eq. (7)); finally O = Stat(V_1..V_T) (Eq. (8)) and action = offset + scale · tanh(O).
 
-This is the oracle the layer-major forward pass of :class:`~ilcsan.snn.actor.SpikingActor` is tested
-against (equal up to float rounding, values and gradients). It owns no arithmetic of its own: it calls
-the actor's synaptic layers, neuron step, intra-layer module and the decoder's
+``actor`` is a :class:`~ilcsan.snn.actor.SpikingActor`, whose ``run`` calls this function for
+``engine="reference"``. This is the oracle its layer-major forward pass is tested against (equal up to float
+rounding, values and gradients). It owns no arithmetic of its own: it calls the actor's synaptic layers, neuron
+step, intra-layer module and the decoder's
 :meth:`~ilcsan.snn.decoders.PopulationDecoder.voltage_step` and
 :meth:`~ilcsan.snn.decoders.PopulationDecoder.readout`, only in Algorithm 1's order.
 """
@@ -15,11 +16,11 @@ from __future__ import annotations
 
 import torch
 
-from .actor import ActorOutput, SpikingActor
 from .noise import NeuronNoise
+from .output import ActorOutput
 
 
-def run_reference(actor: SpikingActor, state: torch.Tensor, noise: NeuronNoise | None = None,
+def run_reference(actor, state: torch.Tensor, noise: NeuronNoise | None = None,
                   membranes: bool = False) -> ActorOutput:
     """Normalised state (K, B, N) → :class:`ActorOutput` by Algorithm 1's time loop; ``noise`` adds NoisySAN's
     perturbations at each step where :class:`~ilcsan.snn.noise.NeuronNoise` says; ``membranes`` records the

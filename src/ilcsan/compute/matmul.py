@@ -4,28 +4,27 @@ Every synaptic layer, critic layer and their gradients is one batched product ``
 (K, R, in) × (K, out, in) → (K, R, out) (:func:`ensemble_matmul`). It runs on one of :data:`MATMUL_PATHS`:
 
 ``aten``    ``torch.bmm``: PyTorch's CPU BLAS, Intel MKL on x86. MKL runs its AVX2 kernels on AMD CPUs, so on
-            an AVX-512 AMD CPU whose vector units are 512 bits wide it reaches about half of the peak.
+            an AVX-512 AMD CPU it can reach only part of the peak.
 ``onednn``  oneDNN's matmul primitive (``torch.ops.mkldnn._linear_pointwise``), float32, which uses AVX-512
             (and AMX's float32 paths where present) on both vendors.
 ``bf16``    ``torch.bmm`` on contiguous bfloat16 copies of both operands (``a`` and ``wᵀ``), the product rounded to
             bfloat16 and returned as float32 (AMX or AVX512-BF16 kernels through oneDNN). Not float32: chosen only
-            by ``--matmul bf16``. A bfloat16 call costs ≈ 20 µs even for tiny products (measured on an AMX Xeon:
-            a (100 × 14)·(14 × 256) product takes 24 µs in bfloat16 against 6 µs in float32, a (500 × 256)·(256 ×
-            256) one 72 µs against 436 µs), so a bf16 run keeps its small products in float32: it times each of
-            its products both ways at start (:func:`product_times`) and runs in bfloat16 only those that
-            gain (``use_matmul_path("bf16", products)``; :func:`product_path`).
+            by ``--matmul bf16``. A bfloat16 call has a fixed cost that small products do not repay, so a bf16 run
+            keeps its small products in float32: it times each of its products both ways at start
+            (:func:`product_times`) and runs in bfloat16 only those that gain (``MatmulPath("bf16", products)``).
 
-:func:`measure_paths` times the float32 paths on a run's own shapes (forward and both backward products of
-every layer) and :func:`fastest_float32_path` picks the quicker; the two agree to float32 rounding (tested), eager
-and inside a compiled update program. The path is a process setting
-(:func:`use_matmul_path`), read when a program is compiled, so it is set before an agent is built, like
-torch's own matmul precision.
+A network is built with its :class:`MatmulPath`, an explicit object its layers keep (nothing global): each product's
+path is read when the product runs, so a compiled program bakes in the one it was traced with.
+:func:`measure_paths` times the float32 paths on a run's own shapes (forward and both backward products of every
+layer) and :func:`fastest_float32_path` picks the quicker; the two agree to float32 rounding (tested), eager and
+inside a compiled update program.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass
 
 import torch
 
@@ -38,36 +37,34 @@ BF16_GAIN = 0.9
 """A bf16 run computes a product in bfloat16 only when that takes at most this fraction of its float32 time: where
 the two are about as fast, the exact one."""
 
-_path = "aten"
-_bf16_products: frozenset[Product] | None = None
 
 
-def use_matmul_path(path: str, bf16_products: Collection[Product] | None = None) -> None:
-    """Run every :func:`ensemble_matmul` of this process on ``path`` (one of :data:`MATMUL_PATHS`). With ``bf16``,
-    ``bf16_products`` are the product shapes to compute in bfloat16, the others running on ``aten`` (None: all)."""
-    global _path, _bf16_products
-    if path not in MATMUL_PATHS:
-        raise ValueError(f"unknown matmul path {path!r}; choose one of {', '.join(MATMUL_PATHS)}")
-    _path = path
-    _bf16_products = None if bf16_products is None else frozenset(bf16_products)
+@dataclass(frozen=True)
+class MatmulPath:
+    """Where a network's products run: ``kind``, one of :data:`MATMUL_PATHS`; with ``bf16``, ``bf16_products`` are the
+    product shapes computed in bfloat16, the others running on ``aten`` (None: all)."""
+
+    kind: str = "aten"
+    bf16_products: frozenset[Product] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in MATMUL_PATHS:
+            raise ValueError(f"unknown matmul path {self.kind!r}; choose one of {', '.join(MATMUL_PATHS)}")
+        if self.bf16_products is not None:
+            object.__setattr__(self, "bf16_products", frozenset(
+                (tuple(a), tuple(w)) for a, w in self.bf16_products))
+
+    def product_path(self, a_shape: Sequence[int], w_shape: Sequence[int]) -> str:
+        """The path a product of these shapes runs on. Shapes are static in a compiled program, so the choice is
+        made once, when it is traced."""
+        if (self.kind == "bf16" and self.bf16_products is not None
+                and (tuple(a_shape), tuple(w_shape)) not in self.bf16_products):
+            return "aten"
+        return self.kind
 
 
-def matmul_setting() -> tuple[str, frozenset[Product] | None]:
-    """This process's path and bf16 product list, as :func:`use_matmul_path` takes them back."""
-    return _path, _bf16_products
-
-
-def matmul_path() -> str:
-    """The path this process's products run on (with ``bf16``, those :func:`product_path` keeps in bfloat16)."""
-    return _path
-
-
-def product_path(a_shape: Sequence[int], w_shape: Sequence[int]) -> str:
-    """The path :func:`ensemble_matmul` runs a product of these shapes on in this process. Shapes are static in a
-    compiled program, so the choice is made once, when it is traced."""
-    if _path == "bf16" and _bf16_products is not None and (tuple(a_shape), tuple(w_shape)) not in _bf16_products:
-        return "aten"
-    return _path
+DEFAULT_MATMUL = MatmulPath()
+"""torch's own float32 products (``aten``): what a network runs on unless a run chose another path."""
 
 
 def onednn_available() -> bool:
@@ -90,10 +87,9 @@ def _(a: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return a.new_empty(a.shape[0], a.shape[1], w.shape[1])
 
 
-def ensemble_matmul(a: torch.Tensor, w: torch.Tensor, path: str | None = None) -> torch.Tensor:
-    """a @ wᵀ per ensemble member, (K, R, in) × (K, out, in) → (K, R, out), on ``path`` (default: this
-    process's, :func:`use_matmul_path`). Not differentiable by itself: callers write their backward with it."""
-    path = path or product_path(a.shape, w.shape)
+def ensemble_matmul(a: torch.Tensor, w: torch.Tensor, path: str = "aten") -> torch.Tensor:
+    """a @ wᵀ per ensemble member, (K, R, in) × (K, out, in) → (K, R, out), on ``path`` (one of
+    :data:`MATMUL_PATHS`). Not differentiable by itself: callers write their backward with it."""
     if path == "onednn":
         return onednn_matmul_nt(a.detach(), w.detach())
     if path == "bf16":
@@ -103,9 +99,8 @@ def ensemble_matmul(a: torch.Tensor, w: torch.Tensor, path: str | None = None) -
 
 def bf16_operands(a: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``a`` and ``wᵀ`` as contiguous bfloat16 tensors, each cast in one pass. Handed a transposed bfloat16
-    operand, torch's bmm copies it into this layout first (torch profiler, torch 2.13: ``aten::contiguous``
-    inside the compiled ILC-SAN update, ≈ 20 copies and 0.3 ms per update); made here, the layout comes with
-    the cast, which a compiled program fuses into the kernel that computes the operand."""
+    operand, torch's bmm copies it into this layout first (an ``aten::contiguous`` per product); made here, the
+    layout comes with the cast, which a compiled program fuses into the kernel that computes the operand."""
     return (a.to(torch.bfloat16, memory_format=torch.contiguous_format),
             w.transpose(1, 2).to(torch.bfloat16, memory_format=torch.contiguous_format))
 

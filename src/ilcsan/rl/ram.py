@@ -1,4 +1,5 @@
-"""Memory a run needs, and the machine's memory: checked before anything starts (one clear line, not a crash)."""
+"""The RAM a run needs (networks, activations, replay buffers) and the machine's: checked before anything starts (one
+clear line, not a crash)."""
 
 from __future__ import annotations
 

@@ -35,10 +35,16 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..config import NOISY_RETURN_REFERENCE, TD3Config
-from ..errors import UserError
-from ..snn.noise import NeuronNoise, coloured_noise, window_covariance
+from ...compute.programs import CompiledPerShape
+from ...config import NOISY_RETURN_REFERENCE, TD3Config
+from ...errors import UserError
+from ...runs.checkpoint import load_params, slice_params
+from ...snn.noise import NeuronNoise, coloured_noise, window_covariance
+from ..adam import Adam
+from .base import Exploration, MethodContext
 
+NOISY_STEP_COST = 2.0
+"""A training step with NoisySAN takes about this many plain steps' time (its noise is drawn and scaled per step)."""
 NOISY_SALT = 5
 """Offset of the noise generators from a seed (the actor, critic, smoothing noise and proxy use others)."""
 DEFAULT_EPISODE_STEPS = 1000
@@ -57,12 +63,11 @@ def return_reference(task: str, td3: TD3Config) -> float:
 
 
 class NoisyExploration(nn.Module):
-    """The noise of K seeds: the learned decoder scales σ_d (K, M) — a parameter with its own Adam optimiser —,
-    each seed's exploration series, and the draws of the update's noise windows."""
+    """The noise of K seeds: the learned decoder scales σ_d (K, M), each seed's exploration series, and the draws of
+    the update's noise windows."""
 
     def __init__(self, widths: Sequence[int], action_dim: int, timesteps: int, td3: TD3Config,
-                 reference_return: float, episode_steps: int | None, seeds: Sequence[int], learning_rate: float,
-                 device: torch.device):
+                 reference_return: float, episode_steps: int | None, seeds: Sequence[int], device: torch.device):
         super().__init__()
         self.widths, self.timesteps = tuple(widths), timesteps
         self.layer_sigmas = tuple(td3.noisy_sigma / math.sqrt(width) for width in self.widths)
@@ -79,7 +84,6 @@ class NoisyExploration(nn.Module):
         self.series: list[torch.Tensor | None] = [None] * len(seeds)  # (samples, C) of the running episode
         self.series_states: list[torch.Tensor | None] = [None] * len(seeds)  # generator state it was drawn from
         self.cursors = [0] * len(seeds)
-        self.optimizer = torch.optim.Adam(self.parameters(), lr=learning_rate, fused=device.type in ("cpu", "cuda"))
         self.weights = torch.zeros(len(seeds), device=device)  # k of the penalty, per seed (set_returns)
         self.device = device
 
@@ -168,9 +172,57 @@ class ExploringActor(nn.Module):
         return self.actor(state, noise=self.exploration.perturbation(unit_noise))
 
 
-def noisy_exploration(actor: nn.Module, td3: TD3Config, task: str, episode_steps: int | None,
-                      seeds: Sequence[int], learning_rate: float, device: torch.device) -> NoisyExploration:
-    """The NoisySAN exploration of a spiking ``actor`` (its layer widths, M and T) on ``task``."""
-    return NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, td3,
-                            return_reference(task, td3), episode_steps, seeds, learning_rate, device)
+class NoisySAN(Exploration):
+    """NoisySAN as a training method: the noise (:class:`NoisyExploration`, this method's :attr:`module`, whose σ_d
+    takes an Adam step at the actor's learning rate with every actor step) and the exploring actor, compiled per
+    input shape when the run compiles."""
 
+    spiking_only = True
+
+    def __init__(self, context: MethodContext):
+        actor = context.actor
+        self.module = NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, context.td3,
+                                       return_reference(context.task, context.td3), context.episode_steps,
+                                       context.seeds, context.device)
+        self.adam = Adam(self.module, context.actor_config.learning_rate)
+        exploring = ExploringActor(actor, self.module)
+        self.exploring_fn = CompiledPerShape(exploring) if context.compile else exploring
+
+    @classmethod
+    def relative_cost(cls, td3: TD3Config) -> float:
+        return NOISY_STEP_COST
+
+    @classmethod
+    def check(cls, task: str, td3: TD3Config) -> None:
+        return_reference(task, td3)
+
+    @torch.no_grad()
+    def explore(self, agent, states: np.ndarray, rngs) -> np.ndarray:
+        """The actor with the next window of each seed's noise series in its neurons: (K, N) → (K, M)."""
+        state = torch.as_tensor(states[:, None, :], device=self.module.device)
+        return self.exploring_fn(state, self.module.acting_noise())[:, 0].cpu().numpy()
+
+    def end_episode(self, index: int) -> None:
+        self.module.end_episode(index)
+
+    def before_updates(self, evaluations) -> None:
+        self.module.set_returns(evaluations)
+
+    def update_inputs(self, batch_size: int) -> dict[str, torch.Tensor]:
+        return {"actor_noise": self.module.update_noise(batch_size), "penalty_weights": self.module.weights}
+
+    def actor_action(self, actor, batch: dict[str, torch.Tensor], parameters) -> torch.Tensor:
+        return actor(batch["obs"], noise=self.module.perturbation(batch["actor_noise"], parameters[0]))
+
+    def loss_terms(self, parameters, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self.module.penalty(parameters[0], batch["penalty_weights"])
+
+    def seed_state(self, index: int) -> dict[str, Any]:
+        return {"parameters": slice_params(self.module, index, 1), "optimizer": self.adam.seed_state(index, 1),
+                "streams": self.module.stream_state(index)}
+
+    def load_seed_states(self, states) -> None:
+        load_params(self.module, [state["parameters"] for state in states], "decoder noise scale")
+        self.adam.load_seed_states([state["optimizer"] for state in states])
+        for index, state in enumerate(states):
+            self.module.load_stream_state(index, state["streams"])

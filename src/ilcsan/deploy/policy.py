@@ -16,13 +16,16 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..compute.programs import CompiledPerShape
 from ..config import ActorConfig
-from ..deploy.runtime.host import HostSide
 from ..errors import UserError
 from ..files import safe_torch_load
+from ..rl.normalizer import RunningNormalizer
+from ..rl.tasks import action_bounds, make_env
+from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT
+from ..runs.directory import CHECKPOINT, POLICY, RunDirectory
 from ..snn.actor import build_actor
-from .checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT
-from .directory import CHECKPOINT, POLICY, RunDirectory
+from .runtime.host import HostSide
 
 
 def resolve_policy_file(path: str | Path) -> Path:
@@ -48,10 +51,9 @@ def resolve_policy_file(path: str | Path) -> Path:
 class Policy(HostSide):
     """A trained actor with its frozen observation normaliser; ``predict`` is the deployed call.
 
-    ``predict`` runs the actor eagerly (≈ 1.3-2.1 ms per batch-1 action on a Hopper ILC-SAN actor, one thread);
-    after :meth:`compile` it runs one compiled program per batch size, as the training loop acts (96 µs per batch-1
-    call on Hopper, validation and normalisation included, measured on an Intel Xeon; the first call of each batch
-    size compiles, ≈ 10-60 s; the same actions to float rounding).
+    ``predict`` runs the actor eagerly; after :meth:`compile` it runs one compiled program per batch size, as the
+    training loop acts: many times faster per call once compiled (``benchmarks/deploy_latency.py`` measures both),
+    the first call of each batch size compiling for a while; the same actions to float rounding.
     """
 
     actor: torch.nn.Module
@@ -71,10 +73,8 @@ class Policy(HostSide):
             self.forward = self.actor
 
     def compile(self) -> Policy:
-        """Run ``predict`` through compiled programs (:class:`~ilcsan.rl.update_program.CompiledPerShape`);
+        """Run ``predict`` through compiled programs (:class:`~ilcsan.compute.programs.CompiledPerShape`);
         returns the policy."""
-        from ..rl.update_program import CompiledPerShape
-
         if self.forward is self.actor:
             self.forward = CompiledPerShape(self.actor)
         return self
@@ -148,16 +148,12 @@ def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
 
     Checkpoints hold the action bounds; for older ones without them the task's environment is built once
     to read them."""
-    from ..rl.normalizer import RunningNormalizer
-
     config = data["config"]
     normalizer = RunningNormalizer(1, len(data["normalizer"]["mean"]))
     normalizer.load(0, data["normalizer"])
     if "action_scale" in data and "action_offset" in data:
         scale, offset = data["action_scale"], data["action_offset"]
     else:
-        from ..rl.tasks import action_bounds, make_env
-
         env = make_env(config["task"])
         scale, offset = action_bounds(env)
         env.close()

@@ -1,0 +1,72 @@
+"""Training methods as strategies: how the actor explores, and which actor gives TD3's target values.
+
+TD3 (:mod:`ilcsan.rl.td3`) has two places where the methods that followed ILC-SAN change it, and each is a strategy
+object with a small set of hooks, chosen by name in the run's TD3 settings:
+
+- **exploration** (``td3.exploration``, :class:`Exploration`): how the actor acts while training (TD3's Gaussian
+  action noise; NoisySAN's noise inside the neurons), what the actor's loss adds, and any parameters of its own;
+- **target actor** (``td3.target_actor``, :class:`TargetActor`): the actor π' in TD3's target values (the
+  Polyak-averaged copy of the actor; Proxy Target's continuous proxy), and what it does before each update.
+
+Each method is one module with one class (its hooks: :mod:`.base`), registered here by name with the paper it comes from
+(:func:`register_exploration`, :func:`register_target_actor`); registering also makes the name a valid choice of the
+setting. Every hook has a do-nothing default in :class:`Method`, so a method writes only what it changes.
+"""
+
+from __future__ import annotations
+
+from ...config import EXPLORATION_PAPERS, TARGET_ACTOR_PAPERS, TD3Config
+from .base import Exploration, Method, MethodContext, TargetActor
+from .gaussian import GaussianActionNoise
+from .noisysan import NoisySAN
+from .polyak import PolyakTarget
+from .proxy_target import ProxyTarget
+
+__all__ = ["EXPLORATION_METHODS", "TARGET_ACTOR_METHODS", "Exploration", "GaussianActionNoise", "Method",
+           "MethodContext", "NoisySAN", "PolyakTarget", "ProxyTarget", "TargetActor", "exploration_method",
+           "register_exploration", "register_target_actor", "relative_cost", "target_actor_method"]
+
+EXPLORATION_METHODS: dict[str, type[Exploration]] = {}
+"""The exploration methods by the name ``td3.exploration`` takes."""
+TARGET_ACTOR_METHODS: dict[str, type[TargetActor]] = {}
+"""The target-actor methods by the name ``td3.target_actor`` takes."""
+
+
+def _register(methods: dict, papers: dict[str, str], name: str, method: type, paper: str | None) -> None:
+    if paper is None and name not in papers:
+        raise ValueError(f"method {name!r} needs the paper it comes from")
+    papers[name] = papers[name] if paper is None else paper
+    methods[name] = method
+
+
+def register_exploration(name: str, method: type[Exploration], paper: str | None = None) -> None:
+    """Make ``name`` a choice of ``td3.exploration`` (``--exploration``) that runs ``method``; ``paper`` says where it
+    comes from (the built-in methods' papers are declared in :data:`ilcsan.config.EXPLORATION_PAPERS`)."""
+    _register(EXPLORATION_METHODS, EXPLORATION_PAPERS, name, method, paper)
+
+
+def register_target_actor(name: str, method: type[TargetActor], paper: str | None = None) -> None:
+    """Make ``name`` a choice of ``td3.target_actor`` (``--target-actor``) that runs ``method``, as
+    :func:`register_exploration` does."""
+    _register(TARGET_ACTOR_METHODS, TARGET_ACTOR_PAPERS, name, method, paper)
+
+
+def exploration_method(name: str) -> type[Exploration]:
+    return EXPLORATION_METHODS[name]
+
+
+def target_actor_method(name: str) -> type[TargetActor]:
+    return TARGET_ACTOR_METHODS[name]
+
+
+def relative_cost(td3: TD3Config) -> float:
+    """The time of a training step with the run's methods over a plain step's (their costs multiply)."""
+    return exploration_method(td3.exploration).relative_cost(td3) * target_actor_method(td3.target_actor).relative_cost(
+        td3)
+
+
+register_exploration("gaussian", GaussianActionNoise)
+register_exploration("noisy", NoisySAN)
+register_target_actor("spiking", PolyakTarget)
+register_target_actor("proxy", ProxyTarget)
+

@@ -1,0 +1,116 @@
+"""The hooks of a training method (:class:`Exploration`, :class:`TargetActor`) with their do-nothing defaults, and
+what a method is built from (:class:`MethodContext`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ...compute.matmul import MatmulPath
+from ...config import ActorConfig, TD3Config
+
+
+@dataclass(frozen=True)
+class MethodContext:
+    """What a method may need to build itself: the agent's actor and settings, the task and the seeds."""
+
+    actor: nn.Module
+    actor_config: ActorConfig
+    td3: TD3Config
+    task: str
+    episode_steps: int | None
+    seeds: tuple[int, ...]
+    state_dim: int
+    action_dim: int
+    action_scale: np.ndarray
+    action_offset: np.ndarray
+    device: torch.device
+    compile: bool
+    matmul: MatmulPath
+
+
+class Method:
+    """Hooks shared by both kinds of method, with their do-nothing defaults.
+
+    ``spiking_only``: the method needs a spiking actor (DAN refuses it). ``relative_cost(td3)``: the time of a
+    training step with this method over a plain one's, for time estimates. ``check(task, td3)``: raise
+    :class:`~ilcsan.errors.UserError` for a setting the method cannot use (before anything is built).
+    ``module``: the method's own trainable parameters or networks (None: none). ``seed_state(index)``: seed
+    ``index``'s part of the method's state for a one-seed checkpoint (None: nothing to save), and
+    ``load_seed_states(states)`` the inverse for all seeds.
+    """
+
+    spiking_only = False
+    module: nn.Module | None = None
+
+    @classmethod
+    def relative_cost(cls, td3: TD3Config) -> float:
+        return 1.0
+
+    @classmethod
+    def check(cls, task: str, td3: TD3Config) -> None:
+        return None
+
+    def seed_state(self, index: int) -> dict[str, Any] | None:
+        return None
+
+    def load_seed_states(self, states: Sequence[dict[str, Any] | None]) -> None:
+        return None
+
+
+class Exploration(Method):
+    """How the actor explores while training (evaluation and the target actor act without it).
+
+    ``explore(agent, states, rngs)``: the actions (K, M) for normalised states (K, N) after the random phase,
+    ``rngs`` the seeds' numpy generators. ``end_episode(index)``: seed ``index``'s episode ended.
+    ``before_updates(evaluations)``: called before each chunk of updates with every seed's evaluation rows.
+    ``update_inputs(batch_size)``: tensors the actor loss needs, added to the minibatch of each delayed (actor)
+    update, drawn outside the update program.
+    ``actor_action(actor, batch, parameters)``: the action the actor loss evaluates, π(s), with ``actor`` a function
+    of states and ``parameters`` the tensors of :attr:`module` (as the update program passes them).
+    ``loss_terms(parameters, batch)``: what the actor loss adds to −Q_1(s, π(s)) (None: nothing). The parameters of
+    :attr:`module`, if any, take an Adam step (:attr:`adam`) at the actor's learning rate with each actor step.
+    """
+
+    adam = None
+
+    def explore(self, agent, states: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        raise NotImplementedError
+
+    def end_episode(self, index: int) -> None:
+        return None
+
+    def before_updates(self, evaluations: Sequence[Sequence[dict[str, float]]]) -> None:
+        return None
+
+    def update_inputs(self, batch_size: int) -> dict[str, torch.Tensor]:
+        return {}
+
+    def actor_action(self, actor, batch: dict[str, torch.Tensor], parameters: Sequence[torch.Tensor]) -> torch.Tensor:
+        return actor(batch["obs"])
+
+    def loss_terms(self, parameters: Sequence[torch.Tensor], batch: dict[str, torch.Tensor]) -> torch.Tensor | None:
+        return None
+
+
+class TargetActor(Method):
+    """The actor π' in TD3's target values y = r + γ(1 − d) min_j Q'_j(s', clip(π'(s') + ε)).
+
+    :attr:`module` is π' itself, whose parameters the update reads (and, with ``soft_update``, moves toward the
+    actor's, θ' ← τθ + (1 − τ)θ', at each delayed step). ``extra_samples(replay, normalizer, rngs, td3)``: arrays
+    added to each minibatch, drawn after its transitions from the same generators. ``before_update(agent, batch)``:
+    runs before each update, outside the update program.
+    """
+
+    soft_update = False
+
+    def extra_samples(self, replay, normalizer, rngs, td3: TD3Config) -> dict[str, np.ndarray]:
+        return {}
+
+    def before_update(self, agent, batch: dict[str, torch.Tensor]) -> None:
+        return None
