@@ -22,7 +22,6 @@ from speed import matmul_floor  # noqa: E402
 
 from ilcsan.config import RunConfig, TD3Config, actor_config  # noqa: E402
 from ilcsan.rl.training import Trainer, sample_minibatch  # noqa: E402
-from ilcsan.snn.matmul import matmul_path  # noqa: E402
 
 
 def mean_us(function, calls: int) -> float:
@@ -64,7 +63,7 @@ def main() -> None:
             batch = trainer.agent.to_batch(sample_minibatch(trainer.replay, trainer.normalizer, trainer.rngs,
                                                             config.td3))
             update_us = mean_us(lambda: trainer.agent.update(batch), args.updates)
-            path = matmul_path()
+            path = trainer.matmul["path"]
         finally:
             trainer.close()
     matmul_us = 1e6 / matmul_floor(args.task, args.preset, (0,), 1, path)  # one step's products, act included

@@ -7,7 +7,7 @@ What it measures, on this machine, in this order:
      with the reference engine (Algorithm 1's time-step loop, eager, about the authors' code), the fast engine
      eager, the update compiled as one program (float32 on the path the run chooses, and bf16); DAN eager and
      compiled; Stable-Baselines3's TD3 (MLP 256-256) when installed, as shipped and with denormal floats flushed
-     to zero as our runs do (``ilcsan.rl.settings.flush_denormals``). Each figure is also given as a ratio to the
+     to zero as our runs do (``ilcsan.compute.process.flush_denormals``). Each figure is also given as a ratio to the
      reference engine and to both SB3 rows, and as a fraction of the step's matmul-only floor: its recorded matrix
      products replayed back to back on the fastest float32 path (bf16 rows: each product as a bf16 run computes it,
      in bfloat16 with the casts excluded where that is faster, else in float32); and the ceiling of any float32
@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ilcsan.compute.process import flush_denormals
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.experiments.estimate import cpu_field
-from ilcsan.rl.settings import flush_denormals
 from ilcsan.rl.training import Trainer
 
 TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8), "HalfCheetah": (17, 6)}
@@ -99,14 +99,14 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
 
     Records the operand shapes of every matmul of two TD3 updates (one without and one with the delayed
     actor update) and one action, at the dispatcher (forward and backward), then replays exactly those
-    products back to back as ``a @ wᵀ`` per ensemble member on ``path`` (:mod:`ilcsan.snn.matmul`). On ``bf16``
+    products back to back as ``a @ wᵀ`` per ensemble member on ``path`` (:mod:`ilcsan.compute.matmul`). On ``bf16``
     each product runs as a bf16 run computes it: in bfloat16 with its operands already cast (a compiled program
     fuses the casts) where that was measured faster, else in float32 (``aten``).
     """
     from torch.utils._python_dispatch import TorchDispatchMode
 
+    from ilcsan.compute.matmul import gaining_products, product_call, product_times
     from ilcsan.rl.td3 import TD3Agent
-    from ilcsan.snn.matmul import gaining_products, product_call, product_times, use_matmul_path
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -122,7 +122,6 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
 
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(threads)
-    use_matmul_path("aten")
     k = len(seeds)
     agent = TD3Agent(actor_config(preset), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
                      [0.0] * action_dim, seeds)
@@ -160,7 +159,7 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
 
 def best_float32_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int) -> tuple[float, str]:
     """The matmul-only floor on the fastest float32 path, and that path."""
-    from ilcsan.snn.matmul import FLOAT32_PATHS, onednn_available
+    from ilcsan.compute.matmul import FLOAT32_PATHS, onednn_available
 
     floors = {path: matmul_floor(task, preset, seeds, threads, path) for path in FLOAT32_PATHS
               if path != "onednn" or onednn_available()}
@@ -194,7 +193,7 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
 def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush: bool = False) -> float | None:
     """SB3's TD3 on the same task and budget, in a fresh process (the denormal flag is per thread and inherited
     by the threads a process starts, so it must be set before any of them exist); as shipped SB3 keeps denormal
-    floats (``flush=False``), our runs flush them (:func:`ilcsan.rl.settings.flush_denormals`): both
+    floats (``flush=False``), our runs flush them (:func:`ilcsan.compute.process.flush_denormals`): both
     are measured, for a like-for-like ratio. None when Stable-Baselines3 is not installed."""
     if importlib.util.find_spec("stable_baselines3") is None:
         return None
@@ -222,6 +221,7 @@ def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush: bool) -> 
 def predict_latency_us(preset: str, task: str, calls: int = 2000, compiled: bool = False) -> float:
     """Median µs of ``Policy.predict`` for one observation, one thread: eager, or after ``Policy.compile``."""
     from ilcsan.runs.policy import Policy
+
     from ilcsan.snn.actor import build_actor
 
     state_dim, action_dim = TASK_SIZES[task]
@@ -257,8 +257,8 @@ def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[s
     """GFLOP/s of every matmul path on the products of a run of ``preset`` on ``task`` (one thread): each path on
     all of them (bf16 casting its operands in the call, as eager runs do), and "bf16 per product" as a compiled
     bf16 run computes them (bfloat16 with the casts fused where that is faster, float32 elsewhere)."""
-    from ilcsan.rl.settings import run_products
-    from ilcsan.snn.matmul import MATMUL_PATHS, gaining_products, measure_paths, product_times
+    from ilcsan.compute.matmul import MATMUL_PATHS, gaining_products, measure_paths, product_times
+    from ilcsan.rl.matmul_choice import run_products
 
     torch.set_num_threads(1)
     config = RunConfig(task=task, seeds=seeds, actor=actor_config(preset))
