@@ -220,8 +220,7 @@ def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush: bool) -> 
 
 def predict_latency_us(preset: str, task: str, calls: int = 2000, compiled: bool = False) -> float:
     """Median µs of ``Policy.predict`` for one observation, one thread: eager, or after ``Policy.compile``."""
-    from ilcsan.runs.policy import Policy
-
+    from ilcsan.deploy.policy import Policy
     from ilcsan.snn.actor import build_actor
 
     state_dim, action_dim = TASK_SIZES[task]

@@ -9,6 +9,9 @@ from collections.abc import Iterable
 from ..config import TD3Config
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
+from ..rl.methods import relative_cost
+from ..rl.methods.noisysan import NOISY_STEP_COST
+from ..rl.methods.proxy_target import PROXY_COST_PER_ITERATION
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 DEFAULT_STEPS_PER_SECOND = 130.0
@@ -20,11 +23,6 @@ setting, not a property of the machine at hand: set the variable to the steps/s 
 DAN_STEP_COST = 0.6
 """Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper; ``benchmarks/speed.py``
 measures both on a machine)."""
-PROXY_COST_PER_ITERATION = 0.6
-"""Proxy Target adds about this much of ILC-SAN's step time per regression step K (compiled, its regression steps
-compiled too; ``benchmarks/methods.py`` measures it)."""
-NOISY_STEP_COST = 2.0
-"""NoisySAN exploration's step time relative to ILC-SAN's (compiled; ``benchmarks/methods.py`` measures it)."""
 
 EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
@@ -59,16 +57,11 @@ def steps_per_second_default() -> float:
 
 
 def row_step_cost(row: RowSpec) -> float:
-    """A row's time per environment step relative to plain ILC-SAN's: DAN is cheaper, Proxy Target and NoisySAN
-    dearer (the constants above); every other spiking row counts as 1."""
+    """A row's time per environment step relative to plain ILC-SAN's: DAN's is cheaper; a training method's is its
+    :meth:`~ilcsan.rl.methods.Method.relative_cost` (Proxy Target and NoisySAN are dearer)."""
     if row.preset == "dan":
         return DAN_STEP_COST
-    cost = 1.0
-    if row.td3.get("target_actor") == "proxy":
-        cost += PROXY_COST_PER_ITERATION * row.td3.get("proxy_iterations", TD3Config.proxy_iterations)
-    if row.td3.get("exploration") == "noisy":
-        cost *= NOISY_STEP_COST
-    return cost
+    return relative_cost(TD3Config(**row.td3))
 
 
 def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) -> float:
@@ -131,7 +124,8 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
               f"evaluations included; the setting {STEPS_PER_SECOND_ENV}, default {DEFAULT_STEPS_PER_SECOND:g}: set it "
               "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
               f"a run's hours = steps × its row's cost / (steps/s) / 3600 (relative to ILC-SAN's step: DAN "
-              f"{DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}), "
+              f"{DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}; "
+              "the methods' costs multiply), "
               "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "
               "cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])
