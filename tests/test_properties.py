@@ -38,7 +38,7 @@ from hypothesis.extra import numpy as hnp
 
 import ilcsan
 from ilcsan.cli import build_parser, main
-from ilcsan.config import DECODERS, ENCODERS, INTRA_VARIANTS, PRESET_NAMES
+from ilcsan.config import DECODERS, ENCODERS, INTRA_TIMINGS, INTRA_VARIANTS, PRESET_NAMES
 from ilcsan.errors import UserError
 from ilcsan.experiments.grid_files import OVERRIDE_KEYS, grid_from_dict, load_grid
 from ilcsan.paper.layouts import TableSpec
@@ -325,8 +325,11 @@ def grids(draw):
     return data
 
 
-VALID_OVERRIDES = {"encoder": ENCODERS, "decoder": DECODERS, "intra": INTRA_VARIANTS, "alpha_v_li": (0.0, 0.5, 1.0),
-                   "hidden_layers": (1, 2, 4), "hidden_width": (1, 16, 256)}
+VALID_OVERRIDES = {"encoder": ENCODERS, "decoder": DECODERS, "intra": INTRA_VARIANTS, "intra_timing": INTRA_TIMINGS,
+                   "alpha_v_li": (0.0, 0.5, 1.0), "hidden_layers": (1, 2, 4), "hidden_width": (1, 16, 256),
+                   "timesteps": (1, 5), "v_th": (0.25, 0.5)}
+"""Valid values of some of the switches a grid row may override (each key is one of OVERRIDE_KEYS)."""
+assert set(VALID_OVERRIDES) <= set(OVERRIDE_KEYS)
 
 
 @st.composite
@@ -336,7 +339,7 @@ def valid_grids(draw):
     for slug in draw(st.lists(st.sampled_from(["ilc", "pop", "no-intra.mean", "a+b", "x_1"]), min_size=1,
                               max_size=3, unique=True)):
         preset = draw(st.sampled_from(PRESET_NAMES))
-        keys = ("hidden_layers", "hidden_width") if preset == "dan" else OVERRIDE_KEYS
+        keys = ("hidden_layers", "hidden_width") if preset == "dan" else tuple(VALID_OVERRIDES)
         row = {"slug": slug, "preset": preset,
                "overrides": {key: draw(st.sampled_from(VALID_OVERRIDES[key]))
                              for key in draw(st.lists(st.sampled_from(keys), max_size=3, unique=True))}}
