@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from ilcsan.config import ActorConfig
 from ilcsan.snn.neurons import (
     CLIFParams,
     DynamicParams,
@@ -22,9 +23,14 @@ from ilcsan.snn.neurons import (
     soft_reset_if_step,
 )
 
+PAPER = ActorConfig()
+"""The paper's constants: α_C 0.5, α_V 0.75, V_th 0.5, w 0.5 (ActorConfig's defaults), V_reset 0."""
+CLIF = CLIFParams(PAPER.alpha_c, PAPER.alpha_v, PAPER.v_th, 0.0, PAPER.surrogate_width)
+DYNAMIC = DynamicParams(PAPER.alpha_c, PAPER.v_th, PAPER.surrogate_width)
+
 
 def run_clif(inputs: list[float], params: CLIFParams | None = None) -> tuple[list[float], list[float]]:
-    params = CLIFParams() if params is None else params
+    params = CLIF if params is None else params
     state = clif_initial_state(torch.zeros(1), params)
     spikes, voltages = [], []
     for x in inputs:
@@ -65,7 +71,7 @@ def test_rectangular_surrogate_window():
 
 
 def test_clif_hard_reset_to_custom_reset_voltage():
-    params = CLIFParams(reset=-0.2)
+    params = CLIF._replace(reset=-0.2)
     state = clif_initial_state(torch.zeros(1), params)
     assert float(state.voltage) == pytest.approx(-0.2)
     s, state = clif_step(torch.tensor([1.0]), state, params)
@@ -79,7 +85,7 @@ def test_clif_train_backward_by_hand():
     # δH_2 = 1, δC_2 = 1, δV_1 = α_V δH_2 = .75; δH_1 = 1 + .75 ((1 - S_1) + (0 - H_1)) = 1.525,
     # δC_1 = δH_1 + α_C δC_2 = 2.025.
     currents = torch.tensor([0.3, 0.3]).reshape(1, 2, 1, 1).requires_grad_()
-    spikes = clif_train(currents, CLIFParams())
+    spikes = clif_train(currents, CLIF)
     assert spikes.flatten().tolist() == [0.0, 1.0]
     spikes.sum().backward()
     assert currents.grad.flatten().tolist() == pytest.approx([2.025, 1.0])
@@ -87,7 +93,7 @@ def test_clif_train_backward_by_hand():
 
 @pytest.mark.parametrize("reset", [0.0, -0.2])
 def test_clif_train_equals_the_step_loop_in_values_and_surrogate_gradients(reset):
-    params = CLIFParams(reset=reset)
+    params = CLIF._replace(reset=reset)
     generator = torch.Generator().manual_seed(0)
     currents = torch.rand(2, 5, 3, 7, generator=generator) * 0.8
     upstream = torch.randn(2, 5, 3, 7, generator=generator)
@@ -122,7 +128,7 @@ def test_encoder_soft_reset_if_and_straight_through_gradient():
     v = torch.zeros(1)
     spikes = []
     for _ in range(5):
-        s, v = soft_reset_if_step(stimulation, v, EncoderParams())
+        s, v = soft_reset_if_step(stimulation, v, EncoderParams(PAPER.enc_v_th))
         spikes.append(s)
     assert [float(s.detach()) for s in spikes] == [0.0, 0.0, 1.0, 0.0, 1.0]
     assert float(v.detach()) == pytest.approx(2.0 - 2 * 0.999, abs=1e-6)
@@ -131,7 +137,7 @@ def test_encoder_soft_reset_if_and_straight_through_gradient():
 
 
 def test_dynamic_neuron_follows_its_equations():
-    params = DynamicParams()
+    params = DYNAMIC
     state = dynamic_initial_state(torch.zeros(1), params)
     s1, state = dynamic_step(torch.tensor([0.4]), state, params)
     # C = .4, v̂ = 0, û = 0 -> v = 0 + (0 - 0 - 0 + .4) = .4 < .5, u = 0
@@ -153,7 +159,7 @@ def test_dynamic_neuron_follows_its_equations():
 def test_gaussian_receptive_fields():
     from ilcsan.snn.encoders import Encoder
 
-    encoder = Encoder("pop", 1, 2, 10, 5)
+    encoder = Encoder("pop", 1, 2, 10, 5, threshold=PAPER.enc_v_th)
     encoder.reset_parameters([torch.Generator()])
     state = torch.tensor([[[0.0, 3.0]]])
     stimulation = encoder(state).values[0, 0]
@@ -173,4 +179,4 @@ def test_neuron_model_of_a_config_carries_its_constants():
     dynamic = neuron_model(actor_config("mdc-san", alpha_c=0.25, v_th=0.75))
     assert dynamic.step is dynamic_step and dynamic.initial_state is dynamic_initial_state and dynamic.train is None
     assert (dynamic.params.alpha_current, dynamic.params.threshold) == (0.25, 0.75)
-    assert dynamic.params.theta_v == DynamicParams().theta_v
+    assert dynamic.params.theta_v == DYNAMIC.theta_v == -0.172

@@ -48,6 +48,18 @@ of DAN's much cheaper ones (``benchmarks/RESULTS.md`` has the measurements behin
 # start of a run (AMX / AVX512-BF16 CPUs; ilcsan.compute.matmul), and on CUDA lets torch use TF32/bf16 tensor cores.
 # Neuron states, spikes, losses and optimiser stay float32 either way.
 MATMUL_CHOICES: tuple[str, ...] = ("float32", "bf16")
+EXPORT_FORMATS: dict[str, str] = {"npz": "deploy bundle for the numpy runtime",
+                                  "nir": "a NIR graph for neuromorphic toolchains"}
+"""``ilcsan export --format``, each with what it writes."""
+WEIGHT_FORMATS: dict[str, str] = {"float32": "float32 weights", "int8": "int8 weights with a float32 scale per layer"}
+"""``ilcsan export --weights``: the weight formats of a deploy bundle."""
+NIR_TARGETS: dict[str, str] = {
+    "portable": "the decoder's LI integrator on the host; runs in snnTorch and Norse",
+    "generic": "the LI integrator in the graph",
+}
+"""``ilcsan export --target``: the profiles of a NIR graph."""
+BACKENDS: dict[str, str] = {"local": "a pool of worker processes on this machine", "ray": "a Ray cluster"}
+"""``ilcsan reproduce --backend``: where a grid's runs execute."""
 TARGET_ACTOR_PAPERS: dict[str, str] = {
     "spiking": "the soft-updated copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
     "proxy": "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)",
@@ -341,17 +353,6 @@ class TD3Config:
         data = dataclasses.asdict(self)
         data["critic_hidden"] = list(self.critic_hidden)
         return data
-
-    def check_network(self, network: str) -> None:
-        """UserError if a training method chosen here needs a spiking actor and ``network`` is DAN's (deep)."""
-        if network == "spiking":
-            return
-        if self.target_actor != "spiking":
-            raise UserError("--target-actor proxy replaces a spiking actor's target by a continuous proxy; DAN is "
-                            "continuous already and keeps TD3's own target: drop --target-actor for DAN")
-        if self.exploration != "gaussian":
-            raise UserError("--exploration noisy puts noise into spiking neurons; DAN has no spiking neurons to put "
-                            "noise in and explores with TD3's action noise: drop --exploration for DAN")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TD3Config:

@@ -11,11 +11,18 @@ import os
 import sys
 
 from .. import __version__
-from ..config import RunConfig, TD3Config
+from ..config import BACKENDS, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TD3Config
 from ..errors import TrainingDiverged, UserError
 from ..paper.layouts import SEEDS, TABLES
 from . import commands, grid_commands
-from .options import _add_actor_switches, _add_run_options, _non_negative_int, _positive_int, add_setting
+from .options import (
+    _add_actor_switches,
+    _add_run_options,
+    _non_negative_int,
+    _positive_int,
+    add_setting,
+    choices_help,
+)
 
 EXIT_USER_ERROR = 2
 EXIT_DIVERGED = 3
@@ -76,12 +83,10 @@ def _add_export_command(subparsers) -> None:
     export = subparsers.add_parser("export", help="export a trained actor (npz bundle or NIR graph)",
                                  description="Export a trained actor for deployment.")
     export.add_argument("run", help="run directory, policy.pt or checkpoint.pt")
-    export.add_argument("--format", default="npz", help="npz (deploy bundle) | nir (neuromorphic graph)")
+    export.add_argument("--format", default="npz", help=choices_help(EXPORT_FORMATS, "npz"))
     export.add_argument("--out", help="output file (default: <run>/actor.<format>)")
-    export.add_argument("--weights", default="float32", help="float32 (default) | int8 (per-layer scales)")
-    export.add_argument("--target", default="portable",
-                        help="NIR profile: portable (default; the decoder's LI integrator on the host, runs in "
-                             "snnTorch and Norse) | generic (the LI integrator in the graph)")
+    export.add_argument("--weights", default="float32", help=choices_help(WEIGHT_FORMATS, "float32"))
+    export.add_argument("--target", default="portable", help="NIR profile: " + choices_help(NIR_TARGETS, "portable"))
     export.set_defaults(handler=commands.cmd_export)
 
 
@@ -100,7 +105,7 @@ def _add_reproduce_command(subparsers) -> None:
         add_setting(reproduce, RunConfig, name, default=None, default_text=_GRIDS)
     add_setting(reproduce, TD3Config, "start_steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--out", default="runs/reproduce", help="grid directory (default runs/reproduce)")
-    reproduce.add_argument("--backend", default="local", help="local (default) | ray")
+    reproduce.add_argument("--backend", default="local", help=choices_help(BACKENDS, "local"))
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
     reproduce.add_argument("--workers", type=_positive_int, default=None, help="parallel runs (default: cores)")
     add_setting(reproduce, RunConfig, "device")

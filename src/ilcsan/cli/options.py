@@ -177,3 +177,8 @@ def build_run_config(args: argparse.Namespace, task: str | None = None):
     check_settings(config)
     check_settings(config.td3)
     return config
+
+
+def choices_help(choices: dict[str, str], default: str) -> str:
+    """The help of an option with declared choices: ``a (what a; default) | b (what b)``."""
+    return " | ".join(f"{name} ({what}{'; default' if name == default else ''})" for name, what in choices.items())

@@ -35,12 +35,12 @@ from typing import Any
 
 import numpy as np
 
-from ..config import INTRA_MASKS, ActorConfig
+from ..config import INTRA_MASKS, WEIGHT_FORMATS, ActorConfig
 from ..files import atomic_savez
 from .policy import Policy
 from .runtime import CONFIG_META_KEYS
 
-WEIGHTS = ("float32", "int8")
+WEIGHTS = tuple(WEIGHT_FORMATS)
 """Weight formats of a bundle: float32, or int8 with a float32 scale per layer (:mod:`ilcsan.deploy.quantize`)."""
 
 

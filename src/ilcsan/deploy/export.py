@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..config import EXPORT_FORMATS
 from ..errors import UserError
 from .bundle import WEIGHTS, export_npz
 from .policy import load
 
-FORMATS = ("npz", "nir")
+FORMATS = tuple(EXPORT_FORMATS)
 
 
 def export(run: str | Path, format: str = "npz", out: Path | None = None, weights: str = "float32",

@@ -1,8 +1,8 @@
 """Where jobs run: a pool of local worker processes, or a Ray cluster.
 
 ``local`` (default)  a pool of ``--workers`` processes (default: the number of cores), started with
-                     ``spawn``, each training one job at a time with **one** torch thread (two
-                     processes fighting over the cores are 10-50x slower). A worker process that
+                     ``spawn``, each training one job at a time with **one** torch thread (processes
+                     whose threads fight over the cores run many times slower). A worker process that
                      dies (e.g. killed for memory) is replaced and its job resumed from its checkpoint,
                      up to :data:`~ilcsan.experiments.coordinator.CRASH_RETRIES` times.
 ``ray``              one Ray task per job with ``num_cpus=1``; Ray retries a task whose worker or node
@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Protocol
 
+from ..config import BACKENDS as BACKEND_CHOICES
 from ..errors import UserError
 from .jobs import Job, JobOutcome, run_job
 
@@ -227,7 +228,7 @@ def ray_node_address() -> str:
     return str(ray.util.get_node_ip_address())
 
 
-BACKENDS: tuple[str, ...] = ("local", "ray")
+BACKENDS: tuple[str, ...] = tuple(BACKEND_CHOICES)
 
 
 def check_backend_options(name: str, address: str | None = None) -> None:

@@ -18,6 +18,7 @@ from ..config import ActorConfig, TD3Config, actor_config, check_settings, descr
 from ..errors import UserError
 from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
+from ..rl.methods import check_methods
 
 
 def _actor_switches() -> dict[str, tuple[str, type]]:
@@ -220,7 +221,7 @@ def _row_td3(item: Mapping[str, Any], network: str, where: str) -> dict[str, Any
     try:
         settings = TD3Config(**td3)
         check_settings(settings)
-        settings.check_network(network)
+        check_methods(settings, network)
     except (UserError, TypeError) as error:
         raise UserError(f"{where}: td3: {error}") from None
     return dict(td3)

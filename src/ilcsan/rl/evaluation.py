@@ -16,10 +16,14 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import torch
 
 from ..errors import UserError
+from ..snn.diagnostics import DIAGNOSTIC_STATES, diagnose_actor
 from .tasks import make_env, make_envs
 
+DIAGNOSTIC_SALT = 7
+"""Offset of the generators that draw the diagnostics' replayed states from a seed and step."""
 EVAL_SEED_OFFSET = 1_000_000
 """Training evaluations use seeds from here on, away from the training environments' own seeds."""
 
@@ -68,6 +72,15 @@ def run_lockstep(envs: Sequence[Sequence], act: Callable[[np.ndarray], np.ndarra
             lengths[k, e] += 1
             running[k, e] = not (terminated or truncated)
     return returns.tolist(), lengths.tolist()
+
+
+def replay_diagnostics(agent, replay, normalizer, seeds: Sequence[int], step: int) -> list[dict[str, float]]:
+    """Each seed's actor diagnostics (:mod:`ilcsan.snn.diagnostics`) on ``DIAGNOSTIC_STATES`` replayed states,
+    normalised as training sees them, drawn by generators of their own (from the seed and ``step``) so that the run's
+    random streams are untouched."""
+    generators = [np.random.default_rng([DIAGNOSTIC_SALT, seed, step]) for seed in seeds]
+    states = normalizer.normalize(replay.sample_states(generators, DIAGNOSTIC_STATES))
+    return diagnose_actor(agent.actor, torch.as_tensor(states, device=agent.device))
 
 
 def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False

@@ -31,9 +31,9 @@ from ..config import RunConfig
 from ..errors import TrainingDiverged
 from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
 from ..runs.directory import RunDirectory, run_directories
-from ..snn.diagnostics import DIAGNOSTIC_STATES, SATURATION, diagnose_actor
+from ..snn.diagnostics import SaturationCount
 from .callbacks import Callbacks, ProgressReport, TensorBoardLog
-from .evaluation import run_lockstep, training_evaluation_seed
+from .evaluation import replay_diagnostics, run_lockstep, training_evaluation_seed
 from .matmul_choice import choose_matmul_path, describe_matmul_choice
 from .normalizer import RunningNormalizer
 from .ram import check_memory
@@ -45,7 +45,6 @@ from .validation import validate_run
 
 LOSS_LIMIT = 1e12
 """A mean critic loss beyond this (or non-finite) means the run diverged."""
-DIAGNOSTIC_SALT = 7
 
 
 class Trainer:
@@ -191,16 +190,10 @@ class Trainer:
         returns, lengths = run_lockstep(self.eval_envs, self._act, first_seeds, check, saturation.observe)
         rows = [{"step": self.step, "eval_return_mean": float(np.mean(r)), "eval_return_std": float(np.std(r)),
                  "eval_length_mean": float(np.mean(n))} for r, n in zip(returns, lengths, strict=True)]
-        for row, share, diagnostics in zip(rows, saturation.shares(), self.diagnose(), strict=True):
+        measured = replay_diagnostics(self.agent, self.replay, self.normalizer, seeds, step)
+        for row, share, diagnostics in zip(rows, saturation.shares(), measured, strict=True):
             row.update(saturated_actions=share, **diagnostics)
         return rows
-
-    def diagnose(self) -> list[dict[str, float]]:
-        """Each seed's actor diagnostics (:mod:`ilcsan.snn.diagnostics`) on :data:`DIAGNOSTIC_STATES` replayed states,
-        drawn by a generator of their own so that the run's random streams are untouched."""
-        generators = [np.random.default_rng([DIAGNOSTIC_SALT, seed, self.step]) for seed in self.config.seeds]
-        states = self.normalizer.normalize(self.replay.sample_states(generators, DIAGNOSTIC_STATES))
-        return diagnose_actor(self.agent.actor, torch.as_tensor(states, device=self.agent.device))
 
     # ----------------------------------------------------------------------- around the loop
     def _after_evaluation(self, rows: list[dict[str, float]], speed: float, losses: dict[str, float]) -> None:
@@ -278,23 +271,6 @@ class Trainer:
         for lock in self.locks:
             lock.close()
         self.eval_envs, self.locks = [], []
-
-
-class SaturationCount:
-    """The share of saturated action components (:func:`~ilcsan.snn.diagnostics.saturated_share`) of each seed over
-    the states of an evaluation's running episodes."""
-
-    def __init__(self, seeds: int, scale: np.ndarray, offset: np.ndarray):
-        self.scale, self.offset = scale, offset
-        self.saturated, self.total = np.zeros(seeds), np.zeros(seeds)
-
-    def observe(self, actions: np.ndarray, running: np.ndarray) -> None:
-        saturated = np.abs(actions - self.offset) > SATURATION * self.scale  # (K, E, M)
-        self.saturated += (saturated * running[..., None]).sum(axis=(1, 2))
-        self.total += running.sum(axis=1) * actions.shape[-1]
-
-    def shares(self) -> list[float]:
-        return [float(s / t) if t else float("nan") for s, t in zip(self.saturated, self.total, strict=True)]
 
 
 class TrainingClock:

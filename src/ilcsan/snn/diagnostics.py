@@ -47,6 +47,23 @@ def saturated_share(actions: np.ndarray, scale: np.ndarray, offset: np.ndarray) 
     return float(np.mean(np.abs(actions - offset) > SATURATION * np.asarray(scale)))
 
 
+class SaturationCount:
+    """The share of saturated action components (:func:`saturated_share`) of each seed over
+    the states of an evaluation's running episodes."""
+
+    def __init__(self, seeds: int, scale: np.ndarray, offset: np.ndarray):
+        self.scale, self.offset = scale, offset
+        self.saturated, self.total = np.zeros(seeds), np.zeros(seeds)
+
+    def observe(self, actions: np.ndarray, running: np.ndarray) -> None:
+        saturated = np.abs(actions - self.offset) > SATURATION * self.scale  # (K, E, M)
+        self.saturated += (saturated * running[..., None]).sum(axis=(1, 2))
+        self.total += running.sum(axis=1) * actions.shape[-1]
+
+    def shares(self) -> list[float]:
+        return [float(s / t) if t else float("nan") for s, t in zip(self.saturated, self.total, strict=True)]
+
+
 def output_diagnostics(output: ActorOutput, threshold: float, surrogate_width: float) -> dict[str, np.ndarray]:
     """``frozen_output_neurons``, ``surrogate_active`` and ``mean_abs_preaction`` of each of the K seeds, (K,) each,
     from one forward pass over a batch of states run with ``membranes=True``; a deep actor (no spikes) gets only

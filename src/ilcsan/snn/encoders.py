@@ -42,10 +42,8 @@ def gaussian_stimulation(state: torch.Tensor, mu: torch.Tensor, sigma: torch.Ten
     return stimulation.flatten(-2)
 
 
-def deterministic_spike_train(stimulation: torch.Tensor, timesteps: int,
-                              params: EncoderParams | None = None) -> torch.Tensor:
+def deterministic_spike_train(stimulation: torch.Tensor, timesteps: int, params: EncoderParams) -> torch.Tensor:
     """E_pop_det's second stage: soft-reset IF neurons driven by A for T steps → (K, T, B, D)."""
-    params = EncoderParams() if params is None else params
     voltage = torch.zeros_like(stimulation).detach()
     spikes = []
     for _ in range(timesteps):
@@ -65,8 +63,7 @@ class Encoder(nn.Module):
     """One encoder module; ``kind`` selects the coding (an option, not a subclass)."""
 
     def __init__(self, kind: str, ensemble: int, state_dim: int, population: int, timesteps: int,
-                 mu_range: float = 3.0, sigma: float = math.sqrt(0.15), clip: float = 3.0,
-                 threshold: float = 0.999):
+                 threshold: float, mu_range: float = 3.0, sigma: float = math.sqrt(0.15), clip: float = 3.0):
         super().__init__()
         self.kind, self.timesteps, self.clip = kind, timesteps, clip
         self.params = EncoderParams(threshold)

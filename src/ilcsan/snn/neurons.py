@@ -58,14 +58,19 @@ def straight_through(hard: torch.Tensor, soft: torch.Tensor) -> torch.Tensor:
 
 
 # --------------------------------------------------------------------------------------------- CLIF
-class CLIFParams(NamedTuple):
-    """Current-based LIF constants (paper, Section IV-A; PopSAN's values)."""
+V_RESET = 0.0
+"""The reset voltage V_reset of every neuron (the paper's, Section IV-A)."""
 
-    alpha_current: float = 0.5
-    alpha_voltage: float = 0.75
-    threshold: float = 0.5
-    reset: float = 0.0
-    surrogate_width: float = 0.5
+
+class CLIFParams(NamedTuple):
+    """Current-based LIF constants: α_C, α_V, V_th, V_reset and the surrogate window w (their values are the actor's
+    configuration, :class:`~ilcsan.config.ActorConfig`; the paper's are its defaults)."""
+
+    alpha_current: float
+    alpha_voltage: float
+    threshold: float
+    reset: float
+    surrogate_width: float
 
 
 class CLIFState(NamedTuple):
@@ -163,23 +168,24 @@ def clif_train(currents: torch.Tensor, params: CLIFParams) -> torch.Tensor:
     """T CLIF steps of one layer at once: currents (K, T, B, D) → spikes (K, T, B, D), from C_0 = 0, V_0 = V_reset.
 
     The same function as :func:`clif_step` applied T times (tested equal, values and surrogate gradients),
-    with the backward pass written out (:func:`_clif_train_backward`) and only H_t saved: about a third
-    less time than autograd's generic graph of the step-by-step loop, compiled or not (measured).
+    with the backward pass written out (:func:`_clif_train_backward`) and only H_t saved, instead of autograd's
+    generic graph of the step-by-step loop.
     """
     return _CLIFTrain.apply(currents, params)[0]
 
 
 # ------------------------------------------------------------------------ MDC-SAN dynamic neuron
 class DynamicParams(NamedTuple):
-    """MDC-SAN's dynamic neuron (Zhang et al. 2022) with the constants of the authors' comparison."""
+    """MDC-SAN's dynamic neuron (Zhang et al. 2022): α_C, V_th and w from the actor's configuration, and the θ
+    constants of the authors' comparison."""
 
-    alpha_current: float = 0.5
+    alpha_current: float
+    threshold: float
+    surrogate_width: float
     theta_v: float = -0.172
     theta_u: float = 0.529
     theta_r: float = 0.021
     theta_s: float = 0.132
-    threshold: float = 0.5
-    surrogate_width: float = 0.5
 
 
 class DynamicState(NamedTuple):
@@ -259,7 +265,7 @@ def neuron_model(config: ActorConfig) -> NeuronModel:
                            DynamicParams(alpha_current=config.alpha_c, threshold=config.v_th,
                                          surrogate_width=config.surrogate_width), dynamic_membrane)
     return NeuronModel(clif_step, clif_initial_state,
-                       CLIFParams(config.alpha_c, config.alpha_v, config.v_th, 0.0, config.surrogate_width),
+                       CLIFParams(config.alpha_c, config.alpha_v, config.v_th, V_RESET, config.surrogate_width),
                        clif_membrane, clif_train)
 
 
@@ -272,9 +278,9 @@ def li_step(input_current: torch.Tensor, voltage: torch.Tensor, alpha_voltage: f
 
 # ------------------------------------------------------------------------ soft-reset IF encoder
 class EncoderParams(NamedTuple):
-    """Deterministic soft-reset IF neurons of the population encoder (PopSAN's threshold 0.999)."""
+    """Deterministic soft-reset IF neurons of the population encoder: their threshold (``enc_v_th``)."""
 
-    threshold: float = 0.999
+    threshold: float
 
 
 def soft_reset_if_step(

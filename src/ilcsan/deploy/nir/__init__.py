@@ -5,7 +5,7 @@
 and the host parts (:mod:`.host`); :mod:`.consumers` loads it into snnTorch or Norse and runs it there.
 """
 
-from .export import DT, FORMAT, TARGETS, block_diagonal, build_graph, cubalif_parameters, export_nir, leaky_integrator
+from .graph import DT, FORMAT, TARGETS, block_diagonal, build_graph, cubalif_parameters, export_nir, leaky_integrator
 from .host import host_decode, host_encode, nir_action, read_host
 from .interpreter import simulate_nir
 

@@ -18,7 +18,7 @@ import numpy as np
 from ...errors import UserError
 from ..runtime.bundle_format import check_encoder_widths, check_vectors
 from ..runtime.host import encode, li_voltages, normalize, select_statistic, squash
-from .export import FORMAT
+from .graph import FORMAT
 from .interpreter import simulate_nir
 
 HOST_KEYS = ("encoder", "enc_v_th", "statistic", "obs_clip")

@@ -16,6 +16,7 @@ setting. Every hook has a do-nothing default in :class:`Method`, so a method wri
 from __future__ import annotations
 
 from ...config import EXPLORATION_PAPERS, TARGET_ACTOR_PAPERS, TD3Config
+from ...errors import UserError
 from .base import Exploration, Method, MethodContext, TargetActor
 from .gaussian import GaussianActionNoise
 from .noisysan import NoisySAN
@@ -23,8 +24,9 @@ from .polyak import PolyakTarget
 from .proxy_target import ProxyTarget
 
 __all__ = ["EXPLORATION_METHODS", "TARGET_ACTOR_METHODS", "Exploration", "GaussianActionNoise", "Method",
-           "MethodContext", "NoisySAN", "PolyakTarget", "ProxyTarget", "TargetActor", "exploration_method",
-           "register_exploration", "register_target_actor", "relative_cost", "target_actor_method"]
+           "MethodContext", "NoisySAN", "PolyakTarget", "ProxyTarget", "TargetActor", "check_methods",
+           "exploration_method", "register_exploration", "register_target_actor", "relative_cost",
+           "target_actor_method"]
 
 EXPLORATION_METHODS: dict[str, type[Exploration]] = {}
 """The exploration methods by the name ``td3.exploration`` takes."""
@@ -57,6 +59,18 @@ def exploration_method(name: str) -> type[Exploration]:
 
 def target_actor_method(name: str) -> type[TargetActor]:
     return TARGET_ACTOR_METHODS[name]
+
+
+def check_methods(td3: TD3Config, network: str) -> None:
+    """:class:`~ilcsan.errors.UserError` if a method chosen in ``td3`` needs a spiking actor (``spiking_only``) and
+    ``network`` is DAN's (deep)."""
+    if network == "spiking":
+        return
+    for flag, name, method in (("--target-actor", td3.target_actor, target_actor_method(td3.target_actor)),
+                               ("--exploration", td3.exploration, exploration_method(td3.exploration))):
+        if method.spiking_only:
+            raise UserError(f"{flag} {name} is a training method for spiking actors ({method.spiking_reason}); DAN "
+                            f"trains with TD3's own: drop {flag} for DAN")
 
 
 def relative_cost(td3: TD3Config) -> float:

@@ -37,15 +37,17 @@ class MethodContext:
 class Method:
     """Hooks shared by both kinds of method, with their do-nothing defaults.
 
-    ``spiking_only``: the method needs a spiking actor (DAN refuses it). ``relative_cost(td3)``: the time of a
-    training step with this method over a plain one's, for time estimates. ``check(task, td3)``: raise
-    :class:`~ilcsan.errors.UserError` for a setting the method cannot use (before anything is built).
-    ``module``: the method's own trainable parameters or networks (None: none). ``seed_state(index)``: seed
-    ``index``'s part of the method's state for a one-seed checkpoint (None: nothing to save), and
-    ``load_seed_states(states)`` the inverse for all seeds.
+    ``spiking_only``: the method needs a spiking actor (DAN refuses it, saying ``spiking_reason``).
+    ``relative_cost(td3)``: the time of a training step with this method over a plain one's, for time estimates.
+    ``check(task, td3)``: raise :class:`~ilcsan.errors.UserError` for a setting the method cannot use (before
+    anything is built). ``module``: the method's own trainable parameters or networks (None: none).
+    ``seed_state(index)``: seed ``index``'s part of the method's state for a one-seed checkpoint (None: nothing to
+    save), and ``load_seed_states(states)`` the inverse for all seeds.
     """
 
     spiking_only = False
+    spiking_reason = ""
+    """Why the method needs a spiking actor, for the refusal's message."""
     module: nn.Module | None = None
 
     @classmethod

@@ -178,6 +178,7 @@ class NoisySAN(Exploration):
     input shape when the run compiles."""
 
     spiking_only = True
+    spiking_reason = "it puts noise into spiking neurons, and DAN has none"
 
     def __init__(self, context: MethodContext):
         actor = context.actor

@@ -50,6 +50,7 @@ class ProxyTarget(TargetActor):
     """The proxy actor (:attr:`module`, π') and its Adam: before every update ``fit`` imitates the online actor."""
 
     spiking_only = True
+    spiking_reason = "it replaces a spiking target actor by a continuous proxy; DAN is continuous already"
 
     def __init__(self, context: MethodContext):
         td3 = context.td3

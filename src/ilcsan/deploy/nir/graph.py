@@ -38,14 +38,14 @@ from typing import Any
 
 import numpy as np
 
-from ...config import INTRA_MASKS
+from ...config import INTRA_MASKS, NIR_TARGETS
 from ...errors import UserError
 from ...files import atomic_write_file
 from ..bundle import bundle_meta
 
 FORMAT = "ilcsan-nir/2"
 DT = 1e-4  # seconds per simulation step, graph.metadata["dt"]
-TARGETS = ("portable", "generic")
+TARGETS = tuple(NIR_TARGETS)
 INPUT, DECODER, INTEGRATOR, OUTPUT = "a_input", "c_decoder", "d_li", "e_output"
 
 
