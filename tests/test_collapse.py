@@ -3,6 +3,7 @@ per-row table from run records, and the diagnostics figure."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -65,3 +66,32 @@ def test_the_diagnostics_figure_is_drawn(tmp_path):
     runs = [record(0, [39, 39], diagnostics), record(1, [39, 400], {k: (0.2, 0.1) for k in diagnostics})]
     path = plot_diagnostics({"paper": runs}, tmp_path / "diagnostics.png", collapsed_at=20_000, until=50_000)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
+
+
+def write_run(folder: Path, seed: int, row: str, returns: list[float]) -> None:
+    folder.mkdir(parents=True)
+    (folder / "config.json").write_text(json.dumps({"task": "Hopper", "seed": seed, "label": row, "table": "mine",
+                                                    "row": row, "actor": {"preset": "ilc-san"}}))
+    lines = ["step,eval_return_mean,saturated_actions,frozen_output_neurons,surrogate_active,mean_abs_preaction"]
+    for index, value in enumerate(returns):
+        collapsed = value < 100
+        lines.append(f"{10_000 * (index + 1)},{value},{1.0 if collapsed else 0.3},{1.0 if collapsed else 0.2},"
+                     f"{0.0 if collapsed else 0.4},{40.0 if collapsed else 1.0}")
+    (folder / "metrics.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_report_collapse_adds_the_table_and_the_figure(tmp_path, capsys):
+    from ilcsan.cli import main
+
+    for seed, returns in enumerate([[39, 39, 39, 39, 39], [39, 39, 300, 800, 900], [39, 150, 400, 900, 1200]]):
+        write_run(tmp_path / "runs" / "paper" / f"seed{seed}", seed, "paper", returns)
+    for seed in range(3):
+        write_run(tmp_path / "runs" / "authors" / f"seed{seed}", seed, "authors", [39, 200, 500, 900, 1500])
+    assert main(["report", str(tmp_path / "runs"), "--collapse", "30000,50000"]) == 0
+    report = (tmp_path / "runs" / "report.md").read_text()
+    assert "## Collapsed start" in report and "| paper | 1/3 (33 %" in report and "| authors | 0/3 (0 %" in report
+    assert "authors vs paper: at 30 000: p = 1.000, at 50 000: p = 1.000" in report
+    assert (tmp_path / "runs" / "diagnostics.png").stat().st_size > 10_000
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "runs"), "--collapse", "thirty"]) == 2
+    assert "--collapse 'thirty': give positive step numbers" in capsys.readouterr().err

@@ -58,6 +58,9 @@ NIR_TARGETS: dict[str, str] = {
     "generic": "the LI integrator in the graph",
 }
 """``ilcsan export --target``: the profiles of a NIR graph."""
+COLLAPSE_RETURN = 100.0
+"""``ilcsan report --collapse``: an evaluation below this return counts as the collapsed start (Hopper's falls score
+about 40)."""
 BACKENDS: dict[str, str] = {"local": "a pool of worker processes on this machine", "ray": "a Ray cluster"}
 """``ilcsan reproduce --backend``: where a grid's runs execute."""
 TARGET_ACTOR_PAPERS: dict[str, str] = {

@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import COLLAPSE_RETURN
 from ..files import atomic_write_file
 from ..snn.diagnostics import DIAGNOSTICS
 from .collect import RunRecord
 
-COLLAPSE_RETURN = 100.0
-"""An evaluation below this return counts as the collapsed start (Hopper's falls score about 40)."""
 Z_95 = 1.959963984540054
 """The standard normal quantile of a two-sided 95 % interval."""
 

@@ -15,15 +15,19 @@ This module ties them together and names the public API of the report.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from ..files import atomic_write_text
 from ..paper.layouts import TableSpec
+from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_diagnostics
 from .collect import RunRecord, RunScan, SkippedRun, collect_runs, read_run, scan_runs
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
 from .render import format_stat, latex_escape, render_csv, render_latex, render_markdown
 from .reward_tables import Cell, RowResult, TableResult, build_table, report_tables
 
+DIAGNOSTICS_FIGURE = "diagnostics.png"
+"""The figure of the actors' diagnostics that ``--collapse`` adds."""
 REPORT_FILES: dict[str, str] = {
     "markdown": "report.md",
     "latex": "report.tex",
@@ -34,21 +38,46 @@ REPORT_FILES: dict[str, str] = {
 
 
 def write_report(directory: str | Path, out_dir: str | Path | None = None,
-                 table: str | TableSpec | None = None) -> dict[str, Path]:
+                 table: str | TableSpec | None = None, collapse_steps: Sequence[int] = (),
+                 collapse_return: float = COLLAPSE_RETURN) -> dict[str, Path]:
     """Scan ``directory`` for runs and write ``report.md``, ``report.tex``, ``report.csv`` and
-    ``curves.png`` into ``out_dir`` (default: ``directory``), each atomically.
+    ``curves.png`` into ``out_dir`` (default: ``directory``), each atomically. With ``collapse_steps``, report.md
+    also counts each row's seeds below ``collapse_return`` at those steps (:mod:`.collapse`) and ``diagnostics.png``
+    draws their actors' diagnostics up to the last of them.
 
-    Returns the paths by kind: ``{"markdown", "latex", "csv", "curves"}``.
+    Returns the paths by kind: ``{"markdown", "latex", "csv", "curves"}`` (and ``"diagnostics"``).
     """
     scan = scan_runs(directory)
     out = Path(out_dir) if out_dir is not None else Path(directory)
     results = report_tables(scan.runs, table)
     paths = {kind: out / name for kind, name in REPORT_FILES.items()}
-    atomic_write_text(paths["markdown"], render_markdown(results, scan.skipped))
+    markdown = render_markdown(results, scan.skipped)
+    if collapse_steps:
+        groups = collapse_groups(results)
+        steps = sorted(collapse_steps)
+        rows = collapse_rows(groups, steps, collapse_return, until=steps[-1])
+        markdown += (f"\n## Collapsed start\n\nSeeds whose evaluation returned less than {collapse_return:g} at each "
+                     f"step (best and last: up to step {steps[-1]:,}).\n\n".replace(",", " ")
+                     + collapse_markdown(rows, steps, collapse_return))
+        paths["diagnostics"] = plot_diagnostics(groups, out / DIAGNOSTICS_FIGURE, steps[-1], steps[-1],
+                                                collapse_return)
+    atomic_write_text(paths["markdown"], markdown)
     atomic_write_text(paths["latex"], render_latex(results, scan.skipped))
     atomic_write_text(paths["csv"], render_csv(results))
     draw_curves(results, paths["curves"])
     return paths
+
+
+def collapse_groups(results: Sequence[TableResult]) -> dict[str, list[RunRecord]]:
+    """Each row's seed runs, per task when a table has several: the groups the collapse statistics compare."""
+    groups: dict[str, list[RunRecord]] = {}
+    for result in results:
+        for row in result.rows:
+            for cell in row.cells:
+                if cell.runs:
+                    label = row.label if len(result.tasks) == 1 else f"{row.label} ({cell.task})"
+                    groups.setdefault(label, []).extend(cell.runs)
+    return groups
 
 
 __all__ = [

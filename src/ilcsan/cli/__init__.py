@@ -11,7 +11,7 @@ import os
 import sys
 
 from .. import __version__
-from ..config import BACKENDS, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TD3Config
+from ..config import BACKENDS, COLLAPSE_RETURN, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TD3Config
 from ..errors import TrainingDiverged, UserError
 from ..paper.layouts import SEEDS, TABLES
 from . import commands, grid_commands
@@ -125,6 +125,13 @@ def _add_report_command(subparsers) -> None:
                              "land in the row with their label, else in the row with their actor settings and "
                              "training method")
     report.add_argument("--out", default=None, help="where to write report.md/.tex/.csv and curves.png")
+    report.add_argument("--collapse", default=None, metavar="STEPS",
+                        help="comma-separated steps, e.g. 30000,50000: also count each row's seeds still in the "
+                             "collapsed start there (return below --collapse-return), with 95 %% intervals and "
+                             "Fisher's exact test between rows, and draw diagnostics.png")
+    report.add_argument("--collapse-return", type=float, default=COLLAPSE_RETURN,
+                        help=f"the return below which a seed counts as collapsed (default {COLLAPSE_RETURN:g}, "
+                             "Hopper's falls)")
     report.set_defaults(handler=grid_commands.cmd_report)
 
 

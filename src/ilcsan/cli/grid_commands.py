@@ -64,6 +64,17 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def parse_steps(text: str) -> tuple[int, ...]:
+    """``--collapse 30000,50000`` → (30000, 50000); a UserError for anything but positive whole numbers."""
+    try:
+        steps = tuple(int(part.replace("_", "")) for part in text.split(",") if part.strip())
+    except ValueError:
+        steps = ()
+    if not steps or any(step < 1 for step in steps):
+        raise UserError(f"--collapse {text!r}: give positive step numbers separated by commas, e.g. 30000,50000")
+    return steps
+
+
 def cmd_report(args) -> int:
     """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     from ..analysis.collect import scan_runs
@@ -72,8 +83,9 @@ def cmd_report(args) -> int:
 
     scan = scan_runs(args.directory)
     table = report_layout(args.table, scan.runs)
+    collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
     try:
-        paths = write_report(args.directory, args.out, table)
+        paths = write_report(args.directory, args.out, table, collapse_steps, args.collapse_return)
     except OSError as error:  # --out is a file, read-only, full, ...
         raise UserError(f"cannot write the report to {args.out or args.directory}: {error.strerror or error}; "
                         "choose another --out") from None
