@@ -397,7 +397,8 @@ def test_cmd_report_accepts_a_grid_file_and_rejects_unknown_tables(tmp_path: Pat
     grid = tmp_path / "mine.toml"
     grid.write_text('name = "mine"\ntasks = ["Hopper", "Ant"]\n[[rows]]\nslug = "ilc"\nlabel = "ILC-SAN"\n'
                     'preset = "ilc-san"\n')
-    args = SimpleNamespace(directory=str(runs), table=str(grid), out=str(tmp_path / "out"))
+    args = SimpleNamespace(directory=str(runs), table=str(grid), out=str(tmp_path / "out"), collapse=None,
+                           collapse_return=100.0)
     assert cmd_report(args) == 0
     assert "1 run(s) found" in capsys.readouterr().out
     markdown = (tmp_path / "out" / "report.md").read_text()
