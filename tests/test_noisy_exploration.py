@@ -14,7 +14,7 @@ from ilcsan.errors import UserError
 from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import train
 from ilcsan.snn.actor import build_actor
-from ilcsan.snn.noise import NeuronNoise, autocorrelation, window_covariance
+from ilcsan.snn.noise import NeuronNoise, autocorrelation, fft_length, window_covariance
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
 NOISY = TD3Config(exploration="noisy", noisy_return_reference=100.0)
@@ -87,7 +87,7 @@ def test_acting_noise_is_one_coloured_series_per_episode_read_t_samples_per_acti
     assert torch.allclose(exploration.decoder_sigma, torch.full((1, 2), 0.5 / np.sqrt(2)))
     windows = torch.cat([exploration.acting_noise()[0, 0] for _ in range(40)])  # (40·T, C)
     series = exploration.series[0]
-    assert series.shape == ((50 + 1) * timesteps, channels)
+    assert series.shape == (fft_length((50 + 1) * timesteps), channels) == (256, channels)  # 255 = 3·5·17 → 2^8
     assert torch.equal(windows, series[:40 * timesteps])  # consecutive actions read consecutive samples
     pink = windows.T.numpy().astype(np.float64)
     assert 0.55 < autocorrelation(pink, 1) < 0.9  # pink: strongly correlated over one simulation step
@@ -103,7 +103,7 @@ def test_the_update_noise_has_the_window_covariance_of_the_exploration_series():
     exploration = _agent().exploration.module
     draws = exploration.update_noise(4000)[0].reshape(-1, 5, exploration.channels)  # (B, T, C)
     windows = draws.permute(0, 2, 1).reshape(-1, 5).double().numpy()
-    expected = window_covariance(1.0, 51 * 5, 5)
+    expected = window_covariance(1.0, fft_length(51 * 5), 5)
     assert np.abs(windows.T @ windows / len(windows) - expected).max() < 0.03
     assert expected[0, 4] > 0.5  # five steps of one action stay correlated
 
@@ -231,3 +231,8 @@ def test_an_interrupted_noisy_run_resumes_to_the_same_curve_and_noise(tmp_path, 
         assert torch.equal(straight["exploration"]["parameters"]["decoder_sigma"],
                            resumed["exploration"]["parameters"]["decoder_sigma"])
         assert straight["exploration"]["streams"]["cursor"] == resumed["exploration"]["streams"]["cursor"] > 0
+
+
+def test_the_series_length_is_the_next_one_with_prime_factors_up_to_seven():
+    # Hopper's 1 001 actions × T = 5: 5 005 = 5·7·11·13 → 5 040 = 2^4·3^2·5·7; 5 041 = 71² → 5 103 = 3^6·7
+    assert [fft_length(n) for n in (1, 255, 5005, 5040, 5041)] == [1, 256, 5040, 5040, 5103]

@@ -52,6 +52,21 @@ def _spectrum_scales(beta: float, samples: int) -> tuple[np.ndarray, float]:
     return scale, 2.0 * math.sqrt(float(np.sum(weights ** 2))) / samples
 
 
+def fft_length(samples: int) -> int:
+    """The smallest length ≥ ``samples`` whose prime factors are all 2, 3, 5 or 7: the lengths an FFT library's
+    mixed-radix transforms handle fastest (a length with a large prime factor, such as 5 005 = 5·7·11·13, takes a
+    slower path)."""
+    length = max(1, samples)
+    while True:
+        rest = length
+        for prime in (2, 3, 5, 7):
+            while rest % prime == 0:
+                rest //= prime
+        if rest == 1:
+            return length
+        length += 1
+
+
 def coloured_noise(beta: float, shape: tuple[int, ...], generator: torch.Generator) -> torch.Tensor:
     """Unit-variance Gaussian noise with power spectrum ∝ f^−β along the last axis of ``shape`` (time); all other
     axes are independent series. float32, from ``generator`` only (reproducible, checkpointable)."""

@@ -8,8 +8,9 @@ action, and the target actor and every evaluation act without noise.
 
 Noise channels: per seed C = 2·ΣD_l + M series (charge and transmission of each neuron, then the decoder),
 ordered [charge_1, transmission_1, charge_2, …, decoder]. The i-th action of an episode reads samples iT … iT+T−1
-of series drawn when the episode's first noisy action is taken, (episode step limit + 1)·T samples long (as
-the authors' script does): the noise is correlated across the T steps of an action and across the actions of an
+of series drawn when the episode's first noisy action is taken, at least (episode step limit + 1)·T samples long
+(the authors' script draws exactly that many; here the next length whose FFT is fast, :func:`~ilcsan.snn.noise.
+fft_length`): the noise is correlated across the T steps of an action and across the actions of an
 episode.
 
 The actor update minimises, per seed,
@@ -39,7 +40,7 @@ from ...compute.programs import CompiledPerShape
 from ...config import NOISY_RETURN_REFERENCE, TD3Config
 from ...errors import UserError
 from ...runs.checkpoint import load_params, slice_params
-from ...snn.noise import NeuronNoise, coloured_noise, window_covariance
+from ...snn.noise import NeuronNoise, coloured_noise, fft_length, window_covariance
 from ..adam import Adam
 from .base import Exploration, MethodContext
 
@@ -75,7 +76,7 @@ class NoisyExploration(nn.Module):
                                                      device=device))
         self.beta, self.reference_return = td3.noisy_beta, reference_return
         self.channels = 2 * sum(self.widths) + action_dim
-        self.series_samples = ((episode_steps or DEFAULT_EPISODE_STEPS) + 1) * timesteps
+        self.series_samples = fft_length(((episode_steps or DEFAULT_EPISODE_STEPS) + 1) * timesteps)
         covariance = window_covariance(self.beta, self.series_samples, timesteps)
         self.window_factor = torch.as_tensor(np.linalg.cholesky(covariance), dtype=torch.float32, device=device)
         self.generators = [torch.Generator().manual_seed(seed * 1_000_003 + NOISY_SALT) for seed in seeds]
