@@ -27,7 +27,7 @@ def main() -> None:
     lengths = {"needed": needed, "fft_length": fft_length(needed)}
     generator = torch.Generator().manual_seed(0)
     times: dict[str, list[float]] = {name: [] for name in lengths}
-    for name, length in lengths.items():  # warm-up
+    for length in lengths.values():  # warm-up
         coloured_noise(1.0, (args.channels, length), generator)
     for _ in range(args.rounds):
         for name, length in lengths.items():
