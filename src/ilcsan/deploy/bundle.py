@@ -38,6 +38,7 @@ import numpy as np
 from ..config import INTRA_MASKS, WEIGHT_FORMATS, ActorConfig
 from ..files import atomic_savez
 from .policy import Policy
+from .quantize import quantize_bundle
 from .runtime import CONFIG_META_KEYS
 
 WEIGHTS = tuple(WEIGHT_FORMATS)
@@ -94,8 +95,6 @@ def export_npz(policy: Policy, path: Path, weights: str = "float32") -> Path:
     arrays = bundle_arrays(policy)
     meta = bundle_meta(policy)
     if weights == "int8":
-        from .quantize import quantize_bundle
-
         arrays, meta = quantize_bundle(arrays, meta)
     atomic_savez(path, meta=np.array(json.dumps(meta)), **arrays)
     return path
