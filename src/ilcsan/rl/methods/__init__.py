@@ -18,10 +18,9 @@ from __future__ import annotations
 from ...config import EXPLORATION_PAPERS, TARGET_ACTOR_PAPERS, TD3Config
 from ...errors import UserError
 from .base import Exploration, Method, MethodContext, TargetActor
-from .gaussian import GaussianActionNoise
 from .noisysan import NoisySAN
-from .polyak import PolyakTarget
 from .proxy_target import ProxyTarget
+from .td3_own import GaussianActionNoise, PolyakTarget
 
 __all__ = ["EXPLORATION_METHODS", "TARGET_ACTOR_METHODS", "Exploration", "GaussianActionNoise", "Method",
            "MethodContext", "NoisySAN", "PolyakTarget", "ProxyTarget", "TargetActor", "check_methods",

@@ -1,12 +1,14 @@
-"""TD3's exploration (Fujimoto et al. 2018; the ILC-SAN paper): Gaussian noise on the deterministic action."""
+"""TD3's own training methods (Fujimoto et al. 2018; the ILC-SAN paper): Gaussian noise on the deterministic action,
+and a target actor that follows the actor slowly."""
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
 
-from .base import Exploration, MethodContext
+from .base import Exploration, MethodContext, TargetActor
 
 
 class GaussianActionNoise(Exploration):
@@ -22,3 +24,13 @@ class GaussianActionNoise(Exploration):
         action = agent.act(states)
         noise = np.stack([rng.standard_normal(self.action_dim) for rng in rngs])
         return np.clip(action + noise * self.sigma * self.scale, low, high)
+
+
+class PolyakTarget(TargetActor):
+    """π' is a copy of the actor made at the start, moved at every delayed step by θ' ← τθ + (1 − τ)θ'."""
+
+    soft_update = True
+
+    def __init__(self, context: MethodContext):
+        self.module = copy.deepcopy(context.actor)
+        self.module.requires_grad_(False)
