@@ -115,3 +115,18 @@ def test_energy_counts_equal_the_runtimes_accumulates(timing):
     report = energy_report(policy, measure_firing_rates(policy, batch))
     for layer in report.layers:
         assert runtime.total_sop_by_layer[layer.name] / len(batch) == pytest.approx(layer.sop, rel=1e-12, abs=1e-9)
+
+
+def test_an_actor_saved_before_the_switch_existed_keeps_algorithm_1s_timing():
+    """config.json, checkpoints, policies and bundles written without ``intra_timing`` ran Algorithm 1's timing, and
+    load so whatever the presets' default is."""
+    from ilcsan.config import SAVED_WITHOUT_INTRA_TIMING, ActorConfig
+
+    saved = actor_config("ilc-san").to_dict()
+    saved.pop("intra_timing")
+    assert ActorConfig.from_dict(saved).intra_timing == SAVED_WITHOUT_INTRA_TIMING == "paper"
+    policy = hand_policy("paper")
+    arrays, meta = bundle_arrays(policy), bundle_meta(policy)
+    meta.pop("intra_timing")
+    trains = DeployedActor.from_arrays(arrays, meta).spike_trains(np.zeros(1))
+    np.testing.assert_array_equal(trains[-1], np.array(EXPECTED["paper"]["spikes"], bool))

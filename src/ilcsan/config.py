@@ -122,6 +122,9 @@ INTRA_TIMING_SOURCES: dict[str, str] = {
 }
 """When the intra-layer current starts (``--intra-timing``), each with where it comes from."""
 INTRA_TIMINGS: tuple[str, ...] = tuple(INTRA_TIMING_SOURCES)
+SAVED_WITHOUT_INTRA_TIMING = "paper"
+"""The timing of an actor saved before ``intra_timing`` existed (a config.json, checkpoint or policy without it): every
+such actor ran Algorithm 1's."""
 
 
 # ------------------------------------------------------------------ settings described once
@@ -270,7 +273,7 @@ class ActorConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise UserError(f"unknown actor setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
-        values = dict(data)
+        values = {"intra_timing": SAVED_WITHOUT_INTRA_TIMING, **data}
         if "hidden" in values:
             values["hidden"] = tuple(int(width) for width in values["hidden"])
         return validate(cls(**values))
