@@ -16,6 +16,7 @@ from ilcsan.snn.actor import build_actor
 from ilcsan.snn.diagnostics import (
     DIAGNOSTICS,
     STUCK_EVALUATIONS,
+    EvaluationActions,
     constant_saturated_action,
     diagnose_actor,
     output_diagnostics,
@@ -44,6 +45,22 @@ def test_saturated_share_is_relative_to_the_action_bounds():
     assert saturated_share(actions, scale, offset) == pytest.approx(3 / 6)
 
 
+def test_evaluation_actions_count_only_the_running_episodes():
+    """Two seeds, two episodes, M = 2, scale (2, 0.5): seed 0's second episode ended after the first step, so its later
+    (wild) actions are not taken; seed 1 acts with one constant corner."""
+    counter = EvaluationActions(2, np.array([2.0, 0.5]), np.array([1.0, 0.0]))
+    steps = [np.array([[[2.99, 0.1], [-0.99, -0.3]], [[-0.99, 0.5], [-0.99, 0.5]]]),
+             np.array([[[1.0, 0.2], [9.0, 9.0]], [[-0.99, 0.5], [-0.99, 0.5]]])]
+    running = [np.array([[True, True], [True, True]]), np.array([[True, False], [True, True]])]
+    for actions, mask in zip(steps, running, strict=True):
+        counter.observe(actions, mask)
+    first, second = counter.rows()
+    # seed 0: components .995/.2, .995/.6, 0/.4 → 2 of 6 saturated; ranges (2.99 − −0.99)/4 = .995, (.2 − −.3)/1 = .5
+    assert first == pytest.approx({"saturated_actions": 2 / 6, "action_spread": 0.995})
+    assert second == {"saturated_actions": 1.0, "action_spread": 0.0}
+    assert constant_saturated_action(second) and not constant_saturated_action(first)
+
+
 def frozen_actor():
     """An ILC-SAN whose output population ignores its input: every output neuron fires at every step for every
     state (zero weights, bias 10), and the decoder drives tanh far into saturation."""
@@ -64,8 +81,10 @@ def test_a_frozen_actor_reports_every_output_neuron_frozen():
         assert row["mean_abs_preaction"] > 40
     with torch.no_grad():
         actions = actor(states).numpy()
-    assert saturated_share(actions, np.array([2.0, 2.0]), np.zeros(2)) == 1.0
-    assert constant_saturated_action({"saturated_actions": 1.0, **diagnose_actor(actor, states)[0]})
+    counter = EvaluationActions(2, np.array([2.0, 2.0]), np.zeros(2))
+    counter.observe(actions, np.ones(actions.shape[:2], bool))
+    for row in counter.rows():
+        assert row == {"saturated_actions": 1.0, "action_spread": 0.0} and constant_saturated_action(row)
 
 
 def test_a_working_actor_does_not():
@@ -78,7 +97,11 @@ def test_a_working_actor_does_not():
     for row in diagnose_actor(actor, states):
         assert row["frozen_output_neurons"] < 0.5
         assert row["surrogate_active"] > 0.05
-        assert not constant_saturated_action({"saturated_actions": 1.0, **row})
+    with torch.no_grad():
+        actions = actor(states).numpy()
+    counter = EvaluationActions(2, np.array([2.0, 2.0]), np.zeros(2))
+    counter.observe(actions, np.ones(actions.shape[:2], bool))
+    assert all(row["action_spread"] > 0.1 and not constant_saturated_action(row) for row in counter.rows())
 
 
 def test_diagnosing_leaves_the_global_random_stream_alone():
@@ -119,12 +142,13 @@ def test_training_reports_the_diagnostics_and_names_a_stuck_seed_once(tmp_path):
     assert len(frozen) >= evaluations_before_the_line
     for row in frozen:
         assert float(row["saturated_actions"]) == 1.0 and float(row["frozen_output_neurons"]) == 1.0
-        assert float(row["surrogate_active"]) == 0.0
+        assert float(row["surrogate_active"]) == 0.0 and float(row["action_spread"]) == 0.0
     for row in working:
         assert float(row["frozen_output_neurons"]) < 1.0 and float(row["saturated_actions"]) < 0.99
+        assert float(row["action_spread"]) > 0.01
     report = (write_report(tmp_path / "run")["markdown"]).read_text()
     seed_lines = {seed: next(line for line in report.splitlines() if line.startswith("| ilc-san | Pendulum-v1 | "
                                                                                      f"{seed} |")) for seed in (8, 9)}
-    assert seed_lines[8].endswith("| 1.00 | 1.00 | 0.00 | " + seed_lines[8].split(" | ")[-2] + " | **stuck** |")
+    assert seed_lines[8].endswith("| 1.00 | 1.00 | 0.00 | " + seed_lines[8].split(" | ")[-3] + " | 0.00 | **stuck** |")
     assert "stuck" not in seed_lines[9]
     assert "stuck at their last evaluations: 1)" in report

@@ -317,7 +317,7 @@ def test_run_directory_contents(tmp_path):
     assert config["seed"] == 0 and config["actor"]["intra"] == "intra" and config["label"] == "ilc-san"
     assert list(read_metrics(tmp_path / "run" / "metrics.csv")[0]) == [
         "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second",
-        "saturated_actions", "frozen_output_neurons", "surrogate_active", "mean_abs_preaction"]
+        "saturated_actions", "frozen_output_neurons", "surrogate_active", "mean_abs_preaction", "action_spread"]
     assert list((tmp_path / "run" / "tensorboard").iterdir()), "TensorBoard events are written"
 
 

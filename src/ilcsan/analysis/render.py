@@ -18,7 +18,8 @@ from .collect import SkippedRun
 from .followups import FOLLOW_UPS, NOT_FOUND
 from .reward_tables import Cell, RowResult, TableResult
 
-DIAGNOSTIC_HEADERS = {"saturated_actions": "Saturated", "frozen_output_neurons": "Frozen outputs",
+DIAGNOSTIC_HEADERS = {"saturated_actions": "Saturated", "action_spread": "Action spread",
+                      "frozen_output_neurons": "Frozen outputs",
                       "surrogate_active": "Surrogate window", "mean_abs_preaction": "Mean abs(O)"}
 
 
@@ -133,8 +134,9 @@ def _md_seeds(result: TableResult) -> list[str]:
               *(DIAGNOSTIC_HEADERS[name] for name in DIAGNOSTICS), "Stuck"]
     lines = [f"Seed runs of `{result.name or result.caption}` ({len(runs)}; stuck at their last evaluations: {stuck}). "
              "Diagnostics at the last evaluation: share of saturated actions, of output neurons with the same spike "
-             "train for every replayed state, of output-neuron steps inside the surrogate window, and mean |pre-tanh "
-             "output|; stuck = one constant saturated action at the last "
+             "train for every replayed state, of output-neuron steps inside the surrogate window, mean |pre-tanh "
+             "output|, and the action spread (the largest range of an action component over the evaluation, in units "
+             "of its full range); stuck = one constant saturated action at the last "
              f"{STUCK_EVALUATIONS} evaluations after the random phase.", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row, cell, run in runs:

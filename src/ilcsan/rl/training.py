@@ -31,7 +31,7 @@ from ..config import RunConfig
 from ..errors import TrainingDiverged
 from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
 from ..runs.directory import RunDirectory, run_directories
-from ..snn.diagnostics import SaturationCount
+from ..snn.diagnostics import EvaluationActions
 from .callbacks import Callbacks, ProgressReport, TensorBoardLog
 from .evaluation import replay_diagnostics, run_lockstep, training_evaluation_seed
 from .matmul_choice import choose_matmul_path, describe_matmul_choice
@@ -186,13 +186,13 @@ class Trainer:
         def check(index: int, what: str, value) -> None:
             check_finite(value, what, seeds[index], step, "evaluation environment")
 
-        saturation = SaturationCount(len(seeds), self.environments.action_scale, self.environments.action_offset)
-        returns, lengths = run_lockstep(self.eval_envs, self._act, first_seeds, check, saturation.observe)
+        actions = EvaluationActions(len(seeds), self.environments.action_scale, self.environments.action_offset)
+        returns, lengths = run_lockstep(self.eval_envs, self._act, first_seeds, check, actions.observe)
         rows = [{"step": self.step, "eval_return_mean": float(np.mean(r)), "eval_return_std": float(np.std(r)),
                  "eval_length_mean": float(np.mean(n))} for r, n in zip(returns, lengths, strict=True)]
         measured = replay_diagnostics(self.agent, self.replay, self.normalizer, seeds, step)
-        for row, share, diagnostics in zip(rows, saturation.shares(), measured, strict=True):
-            row.update(saturated_actions=share, **diagnostics)
+        for row, action_row, diagnostics in zip(rows, actions.rows(), measured, strict=True):
+            row.update(**action_row, **diagnostics)
         return rows
 
     # ----------------------------------------------------------------------- around the loop

@@ -3,10 +3,12 @@
 The decoder's output is O = V_T = Σ_t (W_D S_t + b_D) (Eq. (7)-(8a), α_V^LI = 1) and the action a = tanh(O).
 Once |O| is large, tanh'(O) ≈ 0 and the critic's gradient barely reaches the actor; once the output spikes no
 longer depend on the state, the actor computes a constant and the surrogate gradient (|H_t − V_th| < w, Section
-III-D) is the only way back. Four numbers per seed, measured at every evaluation (:data:`DIAGNOSTICS`):
+III-D) is the only way back. Five numbers per seed, measured at every evaluation (:data:`DIAGNOSTICS`):
 
 ``saturated_actions``      share of action components with |a − offset| > 0.99 · scale (|tanh(O)| > 0.99) over the
                            evaluation's states;
+``action_spread``          the largest range (max − min) of an action component over the evaluation's states, in
+                           units of its full range 2 · scale: 0 when the seed acts with one constant action;
 ``frozen_output_neurons``  share of the M·P_out output neurons whose spike train S_1..S_T is the same for every
                            state of a replay batch;
 ``surrogate_active``       share of output-neuron steps with |H_t − V_th| < w over that batch: where the surrogate
@@ -14,8 +16,8 @@ III-D) is the only way back. Four numbers per seed, measured at every evaluation
 ``mean_abs_preaction``     mean |O| over that batch and the M action dimensions.
 
 A seed acts with a *constant saturated action* (:func:`constant_saturated_action`) when nearly every evaluation
-action is saturated and every output neuron is frozen: then its action is the same corner of the action box for
-every state.
+action is saturated and no action component moves by more than a hundredth of its range: the same corner of the
+action box for every state (a few output neurons may still respond to the state without moving a saturated action).
 """
 
 from __future__ import annotations
@@ -28,15 +30,17 @@ import torch
 from .output import ActorOutput
 
 DIAGNOSTICS: tuple[str, ...] = ("saturated_actions", "frozen_output_neurons", "surrogate_active",
-                                "mean_abs_preaction")
+                                "mean_abs_preaction", "action_spread")
 """The diagnostic columns of ``metrics.csv``, in order."""
 DIAGNOSTIC_STATES = 1000
 """Replayed states per seed on which each evaluation measures the replay-batch diagnostics."""
 SATURATION = 0.99
 """An action component is saturated when |tanh(O)| exceeds this."""
 CONSTANT_SATURATED_SHARE = 0.99
-"""The share of saturated evaluation actions above which, with every output neuron frozen, a seed's action is a
-constant corner of the action box."""
+"""The share of saturated evaluation actions from which, with an action spread below :data:`CONSTANT_SPREAD`, a
+seed's action is a constant corner of the action box."""
+CONSTANT_SPREAD = 0.01
+"""An action spread below this (a hundredth of each component's range) is one constant action."""
 
 
 def saturated_share(actions: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> float:
@@ -47,21 +51,31 @@ def saturated_share(actions: np.ndarray, scale: np.ndarray, offset: np.ndarray) 
     return float(np.mean(np.abs(actions - offset) > SATURATION * np.asarray(scale)))
 
 
-class SaturationCount:
-    """The share of saturated action components (:func:`saturated_share`) of each seed over
-    the states of an evaluation's running episodes."""
+class EvaluationActions:
+    """What each seed's actions over an evaluation's running episodes say: the share of saturated components
+    (:func:`saturated_share`) and the action spread (each component's max − min over 2 · scale, the largest)."""
 
     def __init__(self, seeds: int, scale: np.ndarray, offset: np.ndarray):
-        self.scale, self.offset = scale, offset
+        self.scale, self.offset = np.asarray(scale), np.asarray(offset)
         self.saturated, self.total = np.zeros(seeds), np.zeros(seeds)
+        self.low = np.full((seeds, len(self.scale)), np.inf)
+        self.high = np.full((seeds, len(self.scale)), -np.inf)
 
     def observe(self, actions: np.ndarray, running: np.ndarray) -> None:
+        """The actions (K, E, M) of one step, ``running`` (K, E) the episodes whose actions were taken."""
         saturated = np.abs(actions - self.offset) > SATURATION * self.scale  # (K, E, M)
         self.saturated += (saturated * running[..., None]).sum(axis=(1, 2))
         self.total += running.sum(axis=1) * actions.shape[-1]
+        taken = running[..., None]
+        self.low = np.minimum(self.low, np.where(taken, actions, np.inf).min(axis=1))
+        self.high = np.maximum(self.high, np.where(taken, actions, -np.inf).max(axis=1))
 
-    def shares(self) -> list[float]:
-        return [float(s / t) if t else float("nan") for s, t in zip(self.saturated, self.total, strict=True)]
+    def rows(self) -> list[dict[str, float]]:
+        """Each seed's ``saturated_actions`` and ``action_spread`` (NaN without a single action)."""
+        spread = np.where(np.isfinite(self.high - self.low), (self.high - self.low) / (2 * self.scale), np.nan)
+        return [{"saturated_actions": float(s / t) if t else float("nan"),
+                 "action_spread": float(np.max(row)) if t else float("nan")}
+                for s, t, row in zip(self.saturated, self.total, spread, strict=True)]
 
 
 def output_diagnostics(output: ActorOutput, threshold: float, surrogate_width: float) -> dict[str, np.ndarray]:
@@ -103,8 +117,9 @@ def is_stuck(rows: Sequence[Mapping[str, float]], start_steps: int) -> bool:
 
 
 def constant_saturated_action(row: Mapping[str, float]) -> bool:
-    """Whether an evaluation row says the seed acted with one constant, saturated action."""
-    saturated, frozen = row.get("saturated_actions"), row.get("frozen_output_neurons")
-    if saturated is None or frozen is None or not (np.isfinite(saturated) and np.isfinite(frozen)):
+    """Whether an evaluation row says the seed acted with one constant, saturated action (False for rows without the
+    two measurements)."""
+    saturated, spread = row.get("saturated_actions"), row.get("action_spread")
+    if saturated is None or spread is None or not (np.isfinite(saturated) and np.isfinite(spread)):
         return False
-    return saturated >= CONSTANT_SATURATED_SHARE and frozen >= 1.0
+    return saturated >= CONSTANT_SATURATED_SHARE and spread < CONSTANT_SPREAD
