@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ilcsan.config import actor_config
+from ilcsan.config import INTRA_MASKS, actor_config
 from ilcsan.deploy.policy import Policy
 from ilcsan.snn.actor import build_actor
 
@@ -33,6 +33,31 @@ def random_policy(preset: str = "ilc-san", state_dim: int = 11, action_dim: int 
     actor.eval()
     return Policy(actor, config, "Hopper", rng.normal(0.0, 0.5, state_dim), rng.uniform(0.5, 2.0, state_dim), 3.0,
                   scale, offset, {})
+
+
+FULLY_SPIKING = [
+    ("ilc-san", {}),
+    *[("ilc-san", {"intra": variant}) for variant in INTRA_MASKS if variant != "intra"],
+    *[("ilc-san", {"decoder": decoder, "alpha_v_li": alpha}) for decoder in ("last", "max", "mean")
+      for alpha in (1.0, 0.75, 0.5) if (decoder, alpha) != ("last", 1.0)],
+    ("ilc-san", {"hidden": (64,)}),
+    ("ilc-san", {"hidden": (64, 48, 40)}),
+    ("ilc-san", {"hidden": (40, 40, 40, 40)}),
+    ("ilc-san", {"neuron": "dynamic"}),
+    ("ilc-san", {"neuron": "dynamic", "intra": "self+bias", "decoder": "max", "alpha_v_li": 0.75}),
+    ("ilc-san", {"population_in": 5, "population_out": 7, "timesteps": 8}),
+    ("ilc-san", {"timesteps": 2}),
+    ("popsan", {"decoder": "last"}),  # PopSAN's backbone with the membrane-voltage decoder
+    ("ilc-san", {"intra_timing": "authors"}),  # b_intra from t = 1, as the authors' code
+    ("ilc-san", {"intra_timing": "authors", "intra": "self+bias", "timesteps": 2}),
+    ("ilc-san", {"intra_timing": "authors", "intra": "self"}),  # no bias: the same actor as the paper's timing
+]
+"""Every fully spiking actor the deploy paths take: (preset, switches)."""
+
+
+def case_id(case) -> str:
+    preset, overrides = case
+    return preset + "".join(f"-{key}={value}" for key, value in overrides.items())
 
 
 def observations(policy: Policy, count: int = 16, seed: int = 1) -> np.ndarray:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from spiking_policies import HAND_SOP, hand_made_policy, observations, random_policy
+from spiking_policies import FULLY_SPIKING, HAND_SOP, case_id, hand_made_policy, observations, random_policy
 
 import ilcsan.deploy.runtime
 from ilcsan.analysis.energy import energy_report, measure_firing_rates
@@ -25,36 +25,12 @@ from ilcsan.errors import UserError
 RUNTIME_FOLDER = Path(ilcsan.deploy.runtime.__file__).parent
 TOLERANCE = 1e-4
 
-FULLY_SPIKING = [
-    ("ilc-san", {}),
-    *[("ilc-san", {"intra": variant}) for variant in INTRA_VARIANTS if variant != "intra"],
-    *[("ilc-san", {"decoder": decoder, "alpha_v_li": alpha}) for decoder in ("last", "max", "mean")
-      for alpha in (1.0, 0.75, 0.5) if (decoder, alpha) != ("last", 1.0)],
-    ("ilc-san", {"hidden": (64,)}),
-    ("ilc-san", {"hidden": (64, 48, 40)}),
-    ("ilc-san", {"hidden": (40, 40, 40, 40)}),
-    ("ilc-san", {"neuron": "dynamic"}),
-    ("ilc-san", {"neuron": "dynamic", "intra": "self+bias", "decoder": "max", "alpha_v_li": 0.75}),
-    ("ilc-san", {"population_in": 5, "population_out": 7, "timesteps": 8}),
-    ("ilc-san", {"timesteps": 2}),
-    ("popsan", {"decoder": "last"}),  # PopSAN's backbone with the membrane-voltage decoder
-    ("ilc-san", {"intra_timing": "authors"}),  # b_intra from t = 1, as the authors' code
-    ("ilc-san", {"intra_timing": "authors", "intra": "self+bias", "timesteps": 2}),
-    ("ilc-san", {"intra_timing": "authors", "intra": "self"}),  # no bias: the same actor as the paper's timing
-]
-
-
-def ids(case) -> str:
-    preset, overrides = case
-    return preset + "".join(f"-{key}={value}" for key, value in overrides.items())
-
-
 def deployed(policy) -> DeployedActor:
     return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
 
 
 # --------------------------------------------------------------------------------- equality
-@pytest.mark.parametrize("case", FULLY_SPIKING, ids=ids)
+@pytest.mark.parametrize("case", FULLY_SPIKING, ids=case_id)
 def test_runtime_equals_pytorch_and_counts_the_energy_models_sop(case):
     preset, overrides = case
     policy = random_policy(preset, **overrides)

@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for add_command in (_add_train_command, _add_evaluate_command, _add_export_command, _add_reproduce_command,
                         _add_report_command, _add_energy_command, _add_actors_command, _add_tasks_command,
-                        _add_demo_command):
+                        _add_demo_command, _add_lava_command):
         add_command(subparsers)
     return parser
 
@@ -157,6 +157,24 @@ def _add_tasks_command(subparsers) -> None:
     """``ilcsan tasks``: the paper's tasks and the Gymnasium versions used."""
     tasks = subparsers.add_parser("tasks", help="list the paper's tasks and their sizes")
     tasks.set_defaults(handler=commands.cmd_tasks)
+
+
+def _add_lava_command(subparsers) -> None:
+    """``ilcsan lava RUN|BUNDLE``: the actor in Lava's simulator of Loihi 2, closed loop."""
+    lava = subparsers.add_parser("lava", help="run a trained actor in Lava (Loihi 2's SDK), closed loop",
+                                 description="Run a trained actor as Lava processes in Lava's simulator of Loihi 2, "
+                                             "closed loop on its task (needs `bash scripts/setup-lava`).")
+    lava.add_argument("run", help="run directory, policy.pt, checkpoint.pt or a deploy bundle (.npz)")
+    lava.add_argument("--episodes", type=_positive_int, default=10, help="deterministic episodes (paper: 10)")
+    lava.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed of the first episode")
+    lava.add_argument("--task", help="task (default: the actor's)")
+    lava.add_argument("--fixed-point", action="store_true",
+                      help="Loihi 2's bit-accurate fixed-point models: 8-bit weights with exponents, 24-bit states "
+                           "(default: floating point)")
+    lava.add_argument("--check", type=_non_negative_int, default=0, metavar="N",
+                      help="also print the largest action error against the numpy runtime over the first N actions")
+    lava.add_argument("--json", help="also write the results to this JSON file")
+    lava.set_defaults(handler=commands.cmd_lava)
 
 
 def _add_demo_command(subparsers) -> None:

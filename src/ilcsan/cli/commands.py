@@ -68,6 +68,27 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_lava(args: argparse.Namespace) -> int:
+    """Export the run's bundle (unless given one) and run it in the Lava environment's Python."""
+    import subprocess
+    import tempfile
+
+    from ..deploy import export
+    from ..deploy.lava import lava_python
+
+    python = lava_python()
+    with tempfile.TemporaryDirectory(prefix="ilcsan-lava-") as folder:
+        bundle = Path(args.run)
+        if bundle.suffix != ".npz":
+            bundle = export.export(args.run, "npz", Path(folder) / "actor.npz")
+        command = [str(python), "-m", "ilcsan.deploy.lava", str(bundle), "--episodes", str(args.episodes),
+                   "--seed", str(args.seed), "--check", str(args.check)]
+        command += ["--task", args.task] if args.task else []
+        command += ["--fixed-point"] if args.fixed_point else []
+        command += ["--json", args.json] if args.json else []
+        return subprocess.run(command, check=False).returncode
+
+
 def cmd_actors(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({name: actor_config(name).to_dict() for name in PRESET_SUMMARIES}, indent=2))

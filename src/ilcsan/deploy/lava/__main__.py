@@ -1,0 +1,138 @@
+"""``python -m ilcsan.deploy.lava BUNDLE``: a deploy bundle in Lava's simulator of Loihi 2, closed loop on its task.
+
+Runs in the Lava environment (``scripts/setup-lava``); ``ilcsan lava`` exports a run's bundle and calls this. The
+host does what it does for NIR: normaliser, encoder, the decoder's statistic and tanh; the network (every synaptic
+layer, the intra-layer connections, the biases, the LI readout) runs as Lava processes. Prints each episode's
+return and time, and with ``--check N`` the largest action error against the bundle's numpy runtime over the first
+N observations the episodes visit. User mistakes print one line and exit with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..runtime import DeployedActor
+from ..runtime.errors import UserError
+
+EXIT_USER_ERROR = 2
+CALIBRATION_SEED = 10_000
+"""Environment seed of the numpy-runtime episode whose observations set the fixed-point ranges (not an
+evaluation seed)."""
+CALIBRATION_OBSERVATIONS = 200
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m ilcsan.deploy.lava",
+                                     description="Run a deploy bundle in Lava (Loihi 2's SDK), closed loop.")
+    parser.add_argument("bundle", help="deploy bundle (actor.npz from `ilcsan export`)")
+    parser.add_argument("--episodes", type=int, default=10, help="deterministic episodes (default 10, the paper's)")
+    parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode (default 0)")
+    parser.add_argument("--task", help="task (default: the bundle's)")
+    parser.add_argument("--fixed-point", action="store_true",
+                        help="Loihi 2's bit-accurate fixed-point models (default: floating point)")
+    parser.add_argument("--check", type=int, default=0, metavar="N",
+                        help="compare the first N actions with the bundle's numpy runtime (default 0: no check)")
+    parser.add_argument("--json", help="also write the results to this JSON file")
+    return parser
+
+
+def _episode_observations(actor: DeployedActor, task: str, seed: int, count: int) -> list[np.ndarray]:
+    """Up to ``count`` observations of one episode the numpy runtime plays (the fixed-point calibration)."""
+    from ...rl.tasks import make_env
+
+    env = make_env(task, seed=seed)
+    observation, _ = env.reset(seed=seed)
+    seen = [observation]
+    for _ in range(10 * count):
+        observation, _, terminated, truncated, _ = env.step(actor.act(observation))
+        seen.append(observation)
+        if terminated or truncated:
+            break
+    env.close()
+    picked = np.linspace(0, len(seen) - 1, min(count, len(seen))).round().astype(int)
+    return [seen[index] for index in picked]
+
+
+def _encoded(actor: DeployedActor, observation: np.ndarray) -> np.ndarray:
+    actor.spike_trains(observation)
+    return actor.workspace.trains[0].astype(np.float64)
+
+
+def run(args: argparse.Namespace) -> dict:
+    from ...rl.tasks import make_env
+
+    try:
+        from .network import LavaActor
+    except ImportError as error:
+        raise UserError(f"Lava is not importable here ({error}): run `bash scripts/setup-lava` and use "
+                        ".venv-lava/bin/python (or `ilcsan lava`, which does)") from None
+    path = Path(args.bundle)
+    if args.episodes < 1 or args.check < 0:
+        raise UserError("--episodes must be at least 1 and --check at least 0")
+    actor = DeployedActor.load(path)
+    reference = DeployedActor.load(path)
+    task = args.task or str(actor.meta["task"])
+    calibration = []
+    if args.fixed_point:
+        calibration = [_encoded(reference, observation) for observation in
+                       _episode_observations(reference, task, CALIBRATION_SEED, CALIBRATION_OBSERVATIONS)]
+    start = time.perf_counter()
+    lava = LavaActor(actor, fixed=args.fixed_point, calibration=calibration)
+    returns, lengths, seconds, errors = [], [], [], []
+    try:
+        for episode in range(args.episodes):
+            env = make_env(task, seed=args.seed + episode)
+            observation, _ = env.reset(seed=args.seed + episode)
+            total, steps, began, done = 0.0, 0, time.perf_counter(), False
+            while not done:
+                action = lava.act(observation)
+                if len(errors) < args.check:
+                    errors.append(float(np.abs(action - reference.act(observation)).max()))
+                observation, reward, terminated, truncated, _ = env.step(action)
+                total, steps, done = total + float(reward), steps + 1, terminated or truncated
+            env.close()
+            returns.append(total)
+            lengths.append(steps)
+            seconds.append(time.perf_counter() - began)
+            print(f"episode {episode + 1}/{args.episodes}: return {total:.1f}, {steps} steps, "
+                  f"{seconds[-1]:.0f} s ({seconds[-1] / steps * 1e3:.0f} ms per action)", flush=True)
+    finally:
+        lava.close()
+    result = {"bundle": str(path), "task": task, "mode": "fixed_pt" if args.fixed_point else "floating_pt",
+              "returns": returns, "lengths": lengths, "episode_seconds": seconds,
+              "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
+              "checked_actions": len(errors), "max_action_error": max(errors) if errors else None,
+              "wall_seconds": time.perf_counter() - start}
+    if lava.fixed is not None:
+        result["worst_weight_error"] = lava.fixed.worst_weight_error
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        result = run(args)
+    except UserError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    print(f"{result['task']} in Lava ({result['mode']}), {len(result['returns'])} episodes: average return "
+          f"{result['mean_return']:.1f} ± {result['std_return']:.1f}, average length {np.mean(result['lengths']):.0f}")
+    if result["max_action_error"] is not None:
+        print(f"largest action error against the numpy runtime over {result['checked_actions']} actions: "
+              f"{result['max_action_error']:.3g}")
+    if args.json:
+        target = Path(args.json)
+        partial = target.with_name(target.name + ".partial")
+        partial.write_text(json.dumps(result, indent=2))
+        partial.replace(target)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

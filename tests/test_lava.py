@@ -1,0 +1,153 @@
+"""The actor as Lava processes (Loihi 2's SDK), ``ilcsan.deploy.lava``.
+
+Everywhere: the plan, simulated in numpy with Lava's rules, equals the numpy runtime (actions and every layer's
+spike trains) on every fully spiking CLIF actor; its fixed-point formats are Loihi 2's; actors it cannot map are
+refused in one line. Where Lava's environment exists (``scripts/setup-lava``; the test script builds it when a
+Python 3.10 is found): Lava's floating-point models give ``Policy.predict``'s actions to 1e-5 with the runtime's
+spike counts, and its bit-accurate fixed-point models equal the numpy mirror of their integer rules exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from spiking_policies import FULLY_SPIKING, case_id, hand_made_policy, observations, random_policy
+
+from ilcsan.deploy import DeployedActor
+from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
+from ilcsan.deploy.lava import LAVA_PYTHON_VARIABLE, lava_python
+from ilcsan.deploy.lava.plan import (
+    DECAY_BITS,
+    DECODER,
+    EXPONENT_LIMITS,
+    THRESHOLD_LIMIT,
+    WEIGHT_LIMITS,
+    fix_plan,
+    plan_actor,
+    simulate,
+)
+from ilcsan.deploy.runtime.host import select_statistic, squash
+from ilcsan.errors import UserError
+
+CLIF = [case for case in FULLY_SPIKING if case[1].get("neuron") != "dynamic"]
+FIXED_CASES = ("ilc-san", "ilc-san-intra_timing=authors", "ilc-san-hidden=(40, 40, 40, 40)")
+TOLERANCE = 1e-5
+
+
+def deployed(policy) -> DeployedActor:
+    return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
+
+
+def plan_action(actor: DeployedActor, observation: np.ndarray, fixed=None) -> tuple[np.ndarray, dict]:
+    trains = actor.spike_trains(observation)
+    plan = fixed.plan if fixed is not None else plan_actor(actor)
+    voltages, recorded = simulate(plan, trains[0], fixed, record=True)
+    output = select_statistic(voltages.astype(np.float32), str(actor.meta["statistic"]))
+    return squash(output, actor.action_scale, actor.action_offset), recorded
+
+
+def layer_windows(recorded: dict, plan) -> list[np.ndarray]:
+    """Each synaptic layer's spikes at its T steps of the block (layer l: steps l + 1 .. l + T)."""
+    return [recorded[f"layer{index}"][index:index + plan.timesteps] for index in range(1, len(plan.populations))]
+
+
+# --------------------------------------------------------------------------------- the plan, in numpy
+@pytest.mark.parametrize("case", CLIF, ids=case_id)
+def test_the_plan_equals_the_runtime_action_and_spikes(case):
+    preset, overrides = case
+    policy = random_policy(preset, **overrides)
+    actor = deployed(policy)
+    plan = plan_actor(actor)
+    assert plan.block == plan.timesteps + len(actor.layers) + 1
+    for observation in observations(policy, 6):
+        action, recorded = plan_action(actor, observation)
+        trains = actor.spike_trains(observation)
+        assert np.abs(action - actor.act(observation)).max() < 1e-6
+        for planned, train in zip(layer_windows(recorded, plan), trains[1:], strict=True):
+            np.testing.assert_array_equal(planned, train.astype(bool))
+
+
+def test_the_hand_made_actor_keeps_its_spikes_in_fixed_point():
+    """The hand-made actor's spikes are known (tests/spiking_policies.py): the fixed-point plan keeps them all."""
+    policy = hand_made_policy()
+    actor = deployed(policy)
+    observation = np.zeros(3)
+    fixed = fix_plan(plan_actor(actor), [actor.spike_trains(observation)[0]])
+    _, floating = plan_action(actor, observation)
+    _, integer = plan_action(actor, observation, fixed)
+    for name in ("layer1", "layer2"):
+        np.testing.assert_array_equal(floating[name], integer[name])
+    assert floating["layer1"][1:6, 0].all() and floating["layer1"][2:6, 1].all() and not floating["layer1"][1, 1]
+
+
+def test_fixed_point_formats_are_loihi_2s():
+    policy = random_policy("ilc-san")
+    actor = deployed(policy)
+    batch = observations(policy, 8)
+    plan = plan_actor(actor)
+    fixed = fix_plan(plan, [actor.spike_trains(row)[0] for row in batch])
+    for population in plan.populations[:-1]:
+        threshold = fixed.thresholds[population.name]
+        assert 0 < threshold <= THRESHOLD_LIMIT and threshold & (threshold - 1) == 0  # a power of two
+        assert fixed.units[population.name] * threshold == pytest.approx(population.threshold)
+        assert 1 - (fixed.du[population.name] + 1) / 2 ** DECAY_BITS == 0.5  # α_C, exact
+        assert 1 - fixed.dv[population.name] / 2 ** DECAY_BITS == 0.75  # α_V, exact
+    for weights, exponent, projection in zip(fixed.weights, fixed.exponents, plan.projections, strict=True):
+        assert weights.min() >= WEIGHT_LIMITS[0] and weights.max() <= WEIGHT_LIMITS[1] and not (weights % 2).any()
+        assert EXPONENT_LIMITS[0] <= exponent <= EXPONENT_LIMITS[1]
+        step = fixed.units[projection.target] * 2.0 ** exponent
+        assert np.abs(weights * step - projection.weights).max() <= step * (1 + 1e-9)
+    errors = [np.abs(plan_action(actor, row, fixed)[0] - actor.act(row)).max() for row in batch]
+    assert max(errors) < 0.3 * np.max(actor.action_scale), errors  # 8-bit weights: close, not equal
+    assert fixed.units[DECODER] > 0
+
+
+def test_actors_lava_cannot_map_are_refused_in_one_line():
+    with pytest.raises(UserError, match="CLIF actors") as error:
+        plan_actor(deployed(random_policy("ilc-san", neuron="dynamic")))
+    assert "\n" not in str(error.value)
+
+
+def test_a_missing_lava_environment_is_one_line(monkeypatch, tmp_path):
+    monkeypatch.setenv(LAVA_PYTHON_VARIABLE, str(tmp_path / "nowhere" / "python"))
+    with pytest.raises(UserError, match="scripts/setup-lava"):
+        lava_python()
+
+
+# --------------------------------------------------------------------------------- Lava itself
+def _lava_or_skip() -> Path:
+    try:
+        return lava_python()
+    except UserError as error:
+        pytest.skip(f"Lava's environment is missing ({error})")
+
+
+def test_lava_runs_every_clif_actor_as_predict_and_bit_accurately_in_fixed_point(tmp_path):
+    python = _lava_or_skip()
+    expected = {}
+    for case in CLIF:
+        name = case_id(case)
+        policy = random_policy(case[0], **case[1])
+        batch = observations(policy, 3)
+        export_npz(policy, tmp_path / f"{name}.npz")
+        np.save(tmp_path / f"{name}.obs.npy", batch)
+        actor = deployed(policy)
+        counts = np.zeros(len(actor.layers), int)
+        for row in batch:
+            counts += [int(np.count_nonzero(train)) for train in actor.spike_trains(row)[1:]]
+        expected[name] = (policy.predict(batch), counts)
+    (tmp_path / "fixed.json").write_text(json.dumps(FIXED_CASES))
+    script = Path(__file__).with_name("lava_check.py")
+    done = subprocess.run([str(python), str(script), str(tmp_path)], capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = json.loads((tmp_path / "results.json").read_text())
+    for name, (actions, counts) in expected.items():
+        result = results[name]
+        assert np.abs(np.array(result["actions"]) - actions).max() <= TOLERANCE, name
+        assert [result["spikes"][f"layer{index + 1}"] for index in range(len(counts))] == counts.tolist(), name
+        assert counts.min() > 0, name  # every layer spikes: the comparison is not of silence
+    assert [results[name]["fixed_gap"] for name in FIXED_CASES] == [0.0] * len(FIXED_CASES)
