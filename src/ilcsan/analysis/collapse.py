@@ -121,7 +121,8 @@ def collapse_markdown(rows: Sequence[CollapseRow], steps: Sequence[int], thresho
 
 def plot_diagnostics(groups: Mapping[str, Sequence[RunRecord]], path: str | Path, collapsed_at: int,
                      until: int, threshold: float = COLLAPSE_RETURN) -> Path:
-    """A figure of the diagnostics over the first ``until`` steps: one column per diagnostic, one row per group,
+    """A figure of the diagnostics over the first ``until`` steps: one column per diagnostic the runs logged (runs
+    older than a diagnostic lack its column), one row per group,
     seeds still collapsed at ``collapsed_at`` in red, the others in blue (one thin line per seed, thick: median)."""
     import matplotlib
 
@@ -130,11 +131,12 @@ def plot_diagnostics(groups: Mapping[str, Sequence[RunRecord]], path: str | Path
 
     labelled = {label: [run for run in runs if run.diagnostics] for label, runs in groups.items()}
     labelled = {label: runs for label, runs in labelled.items() if runs}
-    figure, axes = plt.subplots(len(labelled) or 1, len(DIAGNOSTICS), figsize=(4 * len(DIAGNOSTICS),
-                                                                                 3 * max(1, len(labelled))),
+    drawn = [name for name in DIAGNOSTICS if any(_series(run, name, until)[0] for runs in labelled.values()
+                                                  for run in runs)] or list(DIAGNOSTICS)  # runs' own columns
+    figure, axes = plt.subplots(len(labelled) or 1, len(drawn), figsize=(4 * len(drawn), 3 * max(1, len(labelled))),
                                 squeeze=False)
     for row_axes, (label, runs) in zip(axes, labelled.items(), strict=False):
-        for axis, name in zip(row_axes, DIAGNOSTICS, strict=True):
+        for axis, name in zip(row_axes, drawn, strict=True):
             for collapsed, colour in ((True, "tab:red"), (False, "tab:blue")):
                 chosen = [run for run in runs
                           if ((return_at(run, collapsed_at) or 0.0) < threshold) is collapsed]
