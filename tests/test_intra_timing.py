@@ -80,7 +80,7 @@ def test_the_numpy_runtime_gives_the_hand_computed_case(timing, weights):
 @pytest.mark.parametrize("timing", TIMINGS)
 def test_nir_gives_the_hand_computed_case(timing):
     graph = build_graph(hand_policy(timing), target="generic")
-    assert ("b2_lif" in graph.nodes) and (graph.nodes["b2_fc"].bias.shape[0] == (3 if timing == "paper" else 2))
+    assert ("layer2_lif" in graph.nodes) and (graph.nodes["layer2_fc"].bias.shape[0] == (3 if timing == "paper" else 2))
     with torch.no_grad():
         encoded = hand_policy(timing).actor.encoder(torch.zeros(1, 1, 1)).values[0, :, 0].numpy()  # (T, P_in)
     voltages = simulate_nir(graph, encoded.astype(np.float32))

@@ -87,29 +87,28 @@ def test_round_trip_matches_the_actor(tmp_path, overrides, target):
     error = float(np.abs(actions - policy.predict(batch)).max())
     assert error < ROUND_TRIP_TOLERANCE, error
     spikes = simulate_nir(graph, host_encode(read_host(graph), batch[0]))
-    assert set(spikes) == {"e_output"}
+    assert set(spikes) == {"output"}
 
 
 def test_graph_layout(tmp_path):
     policy = random_policy(hidden=(32, 24))
     graph = nir.read(export_nir(policy, tmp_path / "actor.nir", target="generic"))
     types = {name: type(node).__name__ for name, node in graph.nodes.items()}
-    # nir.read returns the nodes alphabetically: the names sort in evaluation order
-    assert list(types.items()) == [("a_input", "Input"), ("b1_fc", "Affine"), ("b1_lif", "CubaLIF"),
-                                   ("b2_fc", "Affine"), ("b2_lif", "CubaLIF"), ("b3_fc", "Affine"),
-                                   ("b3_intra", "Linear"), ("b3_lif", "CubaLIF"), ("c_decoder", "Affine"),
-                                   ("d_li", "I"), ("e_output", "Output")]
+    assert types == {"input": "Input", "layer1_fc": "Affine", "layer1_lif": "CubaLIF", "layer2_fc": "Affine",
+                     "layer2_lif": "CubaLIF", "layer3_fc": "Affine", "layer3_intra": "Linear", "layer3_lif": "CubaLIF",
+                     "decoder": "Affine", "li": "I", "output": "Output"}
     edges = {tuple(edge) for edge in graph.edges}
-    assert {("b3_lif", "b3_intra"), ("b3_intra", "b3_lif"), ("b3_lif", "c_decoder"), ("c_decoder", "d_li")} <= edges
+    assert {("input", "layer1_fc"), ("layer3_lif", "layer3_intra"), ("layer3_intra", "layer3_lif"),
+            ("layer3_lif", "decoder"), ("decoder", "li"), ("li", "output")} <= edges
     portable = nir.read(export_nir(policy, tmp_path / "portable.nir"))
-    assert "d_li" not in portable.nodes and ("c_decoder", "e_output") in {tuple(e) for e in portable.edges}
+    assert "li" not in portable.nodes and ("decoder", "output") in {tuple(e) for e in portable.edges}
     assert read_host(portable)["integrator"] == "host" and read_host(graph)["integrator"] == "graph"
     # the output population (30) plus the clock neuron that delivers b_intra from t = 2 on
-    assert graph.nodes["b3_lif"].v_threshold.shape == (31,)
-    intra = graph.nodes["b3_intra"].weight
+    assert graph.nodes["layer3_lif"].v_threshold.shape == (31,)
+    intra = graph.nodes["layer3_intra"].weight
     assert intra.shape == (31, 31) and not intra[:10, 10:30].any() and not intra[30].any()
     np.testing.assert_allclose(intra[:30, 30], policy.actor.intra.masked_bias()[0].detach().reshape(-1).numpy())
-    assert not graph.nodes["c_decoder"].weight[:, 30].any()
+    assert not graph.nodes["decoder"].weight[:, 30].any()
     assert graph.metadata["format"] == "ilcsan-nir/2" and graph.metadata["dt"] == 1e-4
     assert graph.metadata["encoder_mu"].shape == (11, 10)
     host = read_host(graph)
@@ -174,23 +173,23 @@ def test_clock_neuron_delivers_the_intra_bias_from_step_two(tmp_path):
     batch = observations(policy, 8)
 
     def actions(g):
-        return np.stack([host_decode(host, simulate_nir(g, host_encode(host, obs))["e_output"]) for obs in batch])
+        return np.stack([host_decode(host, simulate_nir(g, host_encode(host, obs))["output"]) for obs in batch])
 
     expected = policy.predict(batch)
     assert np.abs(actions(graph) - expected).max() < ROUND_TRIP_TOLERANCE
     no_clock = build_graph(policy)
-    no_clock.nodes["b3_intra"].weight[:, -1] = 0.0
+    no_clock.nodes["layer3_intra"].weight[:, -1] = 0.0
     assert np.abs(actions(no_clock) - expected).max() > 1e-3
     at_step_one = build_graph(policy)
-    bias = at_step_one.nodes["b3_intra"].weight[:-1, -1].copy()
-    at_step_one.nodes["b3_fc"].bias[:-1] += bias  # b_intra at every step, t = 1 included
-    at_step_one.nodes["b3_intra"].weight[:, -1] = 0.0
+    bias = at_step_one.nodes["layer3_intra"].weight[:-1, -1].copy()
+    at_step_one.nodes["layer3_fc"].bias[:-1] += bias  # b_intra at every step, t = 1 included
+    at_step_one.nodes["layer3_intra"].weight[:, -1] = 0.0
     assert np.abs(actions(at_step_one) - expected).max() > 1e-3
 
 
 def test_leaky_decoder_is_nir_li(tmp_path):
     graph = build_graph(random_policy(decoder="mean", alpha_v_li=0.75), target="generic")
-    li = graph.nodes["d_li"]
+    li = graph.nodes["li"]
     assert isinstance(li, nir.LI)
     np.testing.assert_array_equal(li.tau, np.full(3, np.float32(1e-4) * 4, np.float32))
     np.testing.assert_array_equal(li.r, np.full(3, 4.0, np.float32))

@@ -39,6 +39,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--check", type=int, default=0, metavar="N",
                         help="compare the first N actions with the bundle's numpy runtime (default 0: no check)")
     parser.add_argument("--json", help="also write the results to this JSON file")
+    parser.add_argument("--engine", choices=("lava", "numpy"), default="lava",
+                        help="numpy: the same episodes with the bundle's numpy runtime instead of Lava, for a "
+                             "like-for-like reference (default lava)")
     return parser
 
 
@@ -64,26 +67,40 @@ def _encoded(actor: DeployedActor, observation: np.ndarray) -> np.ndarray:
     return actor.workspace.trains[0].astype(np.float64)
 
 
-def run(args: argparse.Namespace) -> dict:
-    from ...rl.tasks import make_env
-
+def _lava_actor(args: argparse.Namespace, actor: DeployedActor, reference: DeployedActor, task: str):
     try:
         from .network import LavaActor
     except ImportError as error:
         raise UserError(f"Lava is not importable here ({error}): run `bash scripts/setup-lava` and use "
                         ".venv-lava/bin/python (or `ilcsan lava`, which does)") from None
+    calibration = []
+    if args.fixed_point:
+        calibration = [_encoded(reference, observation) for observation in
+                       _episode_observations(reference, task, CALIBRATION_SEED, CALIBRATION_OBSERVATIONS)]
+    return LavaActor(actor, fixed=args.fixed_point, calibration=calibration)
+
+
+class _NumpyEngine:
+    """The bundle's numpy runtime behind the Lava actor's two calls (``--engine numpy``)."""
+
+    def __init__(self, actor: DeployedActor):
+        self.act = actor.act
+
+    def close(self) -> None:
+        pass
+
+
+def run(args: argparse.Namespace) -> dict:
+    from ...rl.tasks import make_env
+
     path = Path(args.bundle)
     if args.episodes < 1 or args.check < 0:
         raise UserError("--episodes must be at least 1 and --check at least 0")
     actor = DeployedActor.load(path)
     reference = DeployedActor.load(path)
     task = args.task or str(actor.meta["task"])
-    calibration = []
-    if args.fixed_point:
-        calibration = [_encoded(reference, observation) for observation in
-                       _episode_observations(reference, task, CALIBRATION_SEED, CALIBRATION_OBSERVATIONS)]
     start = time.perf_counter()
-    lava = LavaActor(actor, fixed=args.fixed_point, calibration=calibration)
+    engine = _NumpyEngine(actor) if args.engine == "numpy" else _lava_actor(args, actor, reference, task)
     returns, lengths, seconds, errors = [], [], [], []
     try:
         for episode in range(args.episodes):
@@ -91,7 +108,7 @@ def run(args: argparse.Namespace) -> dict:
             observation, _ = env.reset(seed=args.seed + episode)
             total, steps, began, done = 0.0, 0, time.perf_counter(), False
             while not done:
-                action = lava.act(observation)
+                action = engine.act(observation)
                 if len(errors) < args.check:
                     errors.append(float(np.abs(action - reference.act(observation)).max()))
                 observation, reward, terminated, truncated, _ = env.step(action)
@@ -103,14 +120,15 @@ def run(args: argparse.Namespace) -> dict:
             print(f"episode {episode + 1}/{args.episodes}: return {total:.1f}, {steps} steps, "
                   f"{seconds[-1]:.0f} s ({seconds[-1] / steps * 1e3:.0f} ms per action)", flush=True)
     finally:
-        lava.close()
-    result = {"bundle": str(path), "task": task, "mode": "fixed_pt" if args.fixed_point else "floating_pt",
+        engine.close()
+    mode = "numpy runtime" if args.engine == "numpy" else "fixed_pt" if args.fixed_point else "floating_pt"
+    result = {"bundle": str(path), "task": task, "mode": mode,
               "returns": returns, "lengths": lengths, "episode_seconds": seconds,
               "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
               "checked_actions": len(errors), "max_action_error": max(errors) if errors else None,
               "wall_seconds": time.perf_counter() - start}
-    if lava.fixed is not None:
-        result["worst_weight_error"] = lava.fixed.worst_weight_error
+    if getattr(engine, "fixed", None) is not None:
+        result["worst_weight_error"] = engine.fixed.worst_weight_error
     return result
 
 
@@ -121,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as error:
         print(f"error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
-    print(f"{result['task']} in Lava ({result['mode']}), {len(result['returns'])} episodes: average return "
+    print(f"{result['task']} ({result['mode']}), {len(result['returns'])} episodes: average return "
           f"{result['mean_return']:.1f} ± {result['std_return']:.1f}, average length {np.mean(result['lengths']):.0f}")
     if result["max_action_error"] is not None:
         print(f"largest action error against the numpy runtime over {result['checked_actions']} actions: "

@@ -197,8 +197,10 @@ def _dense(synapses) -> np.ndarray:
 def simulate(plan: Plan, encoded: np.ndarray, fixed: FixedPlan | None = None,
              record: bool = False) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One block of Lava's rules (module docstring) in numpy, from zero state: encoder spikes (T, D_0) → the LI
-    voltages V_1..V_T (T, M) in float units, and with ``record`` every population's spikes (B, size) and peak |u|,
-    |v| (in float units, ``"<name>.peak"``). With ``fixed``, Loihi 2's integer formats (bit-accurate model)."""
+    voltages V_1..V_T (T, M) in float units, and with ``record`` every population's spikes (B, size), peak |u|,
+    |v| (in float units, ``"<name>.peak"``) and the largest |input| a population received (``"activation.peak"``;
+    integer with ``fixed``, where Loihi 2 carries 16 bits). With ``fixed``, Loihi 2's integer formats (bit-accurate
+    model)."""
     data = plan.source(encoded)
     names = [population.name for population in plan.populations]
     u = {name: np.zeros(population.size, np.int64 if fixed else np.float64) for name, population in
@@ -210,11 +212,12 @@ def simulate(plan: Plan, encoded: np.ndarray, fixed: FixedPlan | None = None,
     trace: dict[str, np.ndarray] = {name: np.zeros((plan.block, size.size), bool) for name, size in
                                     zip(names, plan.populations, strict=True)}
     peaks = dict.fromkeys(names, 0.0)
-    voltages = []
+    voltages, activation = [], 0.0
     for step in range(1, plan.block + 1):
         arriving = {name: np.zeros_like(u[name]) for name in names}
         for index, projection in enumerate(plan.projections):  # each Dense sends what it took in at the last step
             arriving[projection.target] += buffers[index]
+        activation = max(activation, max(float(np.abs(value).max(initial=0)) for value in arriving.values()))
         for name, population in zip(names, plan.populations, strict=True):
             u[name], v[name], spikes[name] = _lif_step(population, u[name], v[name], arriving[name], fixed)
             if record:
@@ -229,7 +232,8 @@ def simulate(plan: Plan, encoded: np.ndarray, fixed: FixedPlan | None = None,
         if step in plan.readout_steps:
             scale = fixed.units[DECODER] / 2 ** STATE_SHIFT if fixed else 1.0
             voltages.append(v[DECODER] * scale)
-    recorded = {**trace, **{f"{name}.peak": np.array(peak) for name, peak in peaks.items()}} if record else {}
+    recorded = {**trace, **{f"{name}.peak": np.array(peak) for name, peak in peaks.items()},
+                "activation.peak": np.array(activation)} if record else {}
     return np.array(voltages, np.float64), recorded
 
 

@@ -1,12 +1,11 @@
 """The actor's spiking part as a NIR graph (``nir`` package), in seconds, for third-party consumers.
 
-Layout (node names sort in evaluation order: ``nir.read`` returns nodes alphabetically, and snnTorch's
-importer builds them in that order):
-``a_input`` (D_0 = N·P_in spikes per step) → ``b1_fc`` Affine → ``b1_lif`` CubaLIF → … → ``b{L+1}_fc`` →
-``b{L+1}_lif`` (the M·P_out output population) → ``c_decoder`` Affine (block-diagonal: row m holds W_D^m on
-population m, bias b_D) → [``d_li``: target ``generic`` only] → ``e_output``. The intra-layer connections
-(Eq. (10)) are ``b{L+1}_intra``, a block-diagonal nir.Linear on the recurrent edge lif ↔ intra. For the
-``fr`` decoder (PopSAN) the graph ends at the output population's spikes; the group FC stays on the host.
+Layout: ``input`` (D_0 = N·P_in spikes per step) → ``layer1_fc`` Affine → ``layer1_lif`` CubaLIF → … →
+``layer{L+1}_fc`` → ``layer{L+1}_lif`` (the M·P_out output population) → ``decoder`` Affine (block-diagonal: row m
+holds W_D^m on population m, bias b_D) → [``li``: target ``generic`` only] → ``output``. The intra-layer
+connections (Eq. (10)) are ``layer{L+1}_intra``, a block-diagonal nir.Linear on the recurrent edge lif ↔ intra. For
+the ``fr`` decoder (PopSAN) the graph ends at the output population's spikes; the group FC stays on the host.
+Consumers order the nodes by the edges, not by name (``nir.read`` returns them alphabetically).
 
 Targets. ``portable`` (default): the decoder's LI neuron (Eq. (7)) runs on the host — snnTorch 1.0.0 and
 Norse 1.1.0 map neither nir.LI nor nir.I — and the graph's output is its input X_t = W_D S_t + b_D per step.
@@ -46,12 +45,13 @@ from ..bundle import bundle_meta
 FORMAT = "ilcsan-nir/2"
 DT = 1e-4  # seconds per simulation step, graph.metadata["dt"]
 TARGETS = tuple(NIR_TARGETS)
-INPUT, DECODER, INTEGRATOR, OUTPUT = "a_input", "c_decoder", "d_li", "e_output"
+INPUT, DECODER, INTEGRATOR, OUTPUT = "input", "decoder", "li", "output"
+"""The graph's input and output are named as NIR's own examples and consumers expect."""
 
 
 def layer_names(index: int) -> tuple[str, str, str]:
     """Names of layer ``index`` (1-based): its Affine, its CubaLIF, its recurrent intra Linear."""
-    return f"b{index}_fc", f"b{index}_lif", f"b{index}_intra"
+    return f"layer{index}_fc", f"layer{index}_lif", f"layer{index}_intra"
 
 
 def _time_constant(alpha: float, dt: float, size: int) -> np.ndarray:
