@@ -34,6 +34,11 @@ from ilcsan.deploy.runtime.host import select_statistic, squash
 from ilcsan.errors import UserError
 
 CLIF = [case for case in FULLY_SPIKING if case[1].get("neuron") != "dynamic"]
+IN_LAVA = [case for case in CLIF
+           if case[1].get("alpha_v_li", 0.75) == 0.75 and case[1].get("hidden") in (None, (40,) * 4)]
+"""Every intra variant, both timings, D_last/D_max/D_mean with α_V^LI = 0.75, 2 and 4 hidden layers, T = 2 and 8,
+PopSAN's backbone: each Lava actor costs seconds to build, so the other α_V^LI and the 1- and 3-layer cases run in
+numpy only (the plan's test above)."""
 FIXED_CASES = ("ilc-san", "ilc-san-intra_timing=authors", "ilc-san-hidden=(40, 40, 40, 40)")
 TOLERANCE = 1e-5
 
@@ -129,7 +134,7 @@ def _lava_or_skip() -> Path:
 def test_lava_runs_every_clif_actor_as_predict_and_bit_accurately_in_fixed_point(tmp_path):
     python = _lava_or_skip()
     expected = {}
-    for case in CLIF:
+    for case in IN_LAVA:
         name = case_id(case)
         policy = random_policy(case[0], **case[1])
         batch = observations(policy, 3)

@@ -25,6 +25,8 @@ CALIBRATION_SEED = 10_000
 """Environment seed of the numpy-runtime episode whose observations set the fixed-point ranges (not an
 evaluation seed)."""
 CALIBRATION_OBSERVATIONS = 200
+CHECK_TOLERANCE = 1e-5
+"""``--check`` counts the actions that differ from the numpy runtime's by more than this."""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -126,6 +128,7 @@ def run(args: argparse.Namespace) -> dict:
               "returns": returns, "lengths": lengths, "episode_seconds": seconds,
               "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
               "checked_actions": len(errors), "max_action_error": max(errors) if errors else None,
+              "actions_off": sum(error > CHECK_TOLERANCE for error in errors),
               "wall_seconds": time.perf_counter() - start}
     if getattr(engine, "fixed", None) is not None:
         result["worst_weight_error"] = engine.fixed.worst_weight_error
@@ -143,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{result['mean_return']:.1f} ± {result['std_return']:.1f}, average length {np.mean(result['lengths']):.0f}")
     if result["max_action_error"] is not None:
         print(f"largest action error against the numpy runtime over {result['checked_actions']} actions: "
-              f"{result['max_action_error']:.3g}")
+              f"{result['max_action_error']:.3g} ({result['actions_off']} off by more than {CHECK_TOLERANCE:g})")
     if args.json:
         target = Path(args.json)
         partial = target.with_name(target.name + ".partial")
