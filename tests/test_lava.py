@@ -156,3 +156,24 @@ def test_lava_runs_every_clif_actor_as_predict_and_bit_accurately_in_fixed_point
         assert [result["spikes"][f"layer{index + 1}"] for index in range(len(counts))] == counts.tolist(), name
         assert counts.min() > 0, name  # every layer spikes: the comparison is not of silence
     assert [results[name]["fixed_gap"] for name in FIXED_CASES] == [0.0] * len(FIXED_CASES)
+
+
+def test_the_closed_loop_command_plays_the_mirror_like_the_runtime(tmp_path, capsys):
+    """``python -m ilcsan.deploy.lava --engine mirror`` (Lava's rules in numpy) plays a Hopper episode as the numpy
+    runtime does; a file that is not a bundle is one line and exit code 2."""
+    from ilcsan.deploy.lava.__main__ import main
+
+    bundle = export_npz(random_policy("ilc-san", hidden=(32,)), tmp_path / "actor.npz")
+    returns = {}
+    for engine in ("mirror", "numpy"):
+        out = tmp_path / f"{engine}.json"
+        assert main([str(bundle), "--engine", engine, "--episodes", "1", "--check", "20", "--json", str(out)]) == 0
+        result = json.loads(out.read_text())
+        returns[engine] = result["returns"]
+        assert result["checked_actions"] == min(20, result["lengths"][0])
+        assert result["max_action_error"] <= TOLERANCE and result["actions_off"] == 0
+    assert returns["mirror"] == pytest.approx(returns["numpy"], abs=1e-3)
+    (tmp_path / "broken.npz").write_text("not a bundle")
+    assert main([str(tmp_path / "broken.npz"), "--engine", "mirror", "--episodes", "1"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("error: ") and "\n" not in error

@@ -19,12 +19,15 @@ import numpy as np
 
 from ..runtime import DeployedActor
 from ..runtime.errors import UserError
+from ..runtime.host import select_statistic, squash
+from .plan import fix_plan, plan_actor, simulate
 
 EXIT_USER_ERROR = 2
 CALIBRATION_SEED = 10_000
 """Environment seed of the numpy-runtime episode whose observations set the fixed-point ranges (not an
 evaluation seed)."""
 CALIBRATION_OBSERVATIONS = 200
+ENGINES = ("lava", "mirror", "numpy")
 CHECK_TOLERANCE = 1e-5
 """``--check`` counts the actions that differ from the numpy runtime's by more than this."""
 
@@ -41,9 +44,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--check", type=int, default=0, metavar="N",
                         help="compare the first N actions with the bundle's numpy runtime (default 0: no check)")
     parser.add_argument("--json", help="also write the results to this JSON file")
-    parser.add_argument("--engine", choices=("lava", "numpy"), default="lava",
-                        help="numpy: the same episodes with the bundle's numpy runtime instead of Lava, for a "
-                             "like-for-like reference (default lava)")
+    parser.add_argument("--engine", choices=ENGINES, default="lava",
+                        help="lava (default); mirror: the same network with Lava's rules simulated in numpy "
+                             "(ilcsan.deploy.lava.plan.simulate, equal to Lava in the tests; fast, no Lava needed); "
+                             "numpy: the bundle's numpy runtime, for a like-for-like reference")
     return parser
 
 
@@ -69,17 +73,36 @@ def _encoded(actor: DeployedActor, observation: np.ndarray) -> np.ndarray:
     return actor.workspace.trains[0].astype(np.float64)
 
 
+def _calibration(args: argparse.Namespace, reference: DeployedActor, task: str) -> list[np.ndarray]:
+    if not args.fixed_point:
+        return []
+    return [_encoded(reference, observation) for observation in
+            _episode_observations(reference, task, CALIBRATION_SEED, CALIBRATION_OBSERVATIONS)]
+
+
 def _lava_actor(args: argparse.Namespace, actor: DeployedActor, reference: DeployedActor, task: str):
     try:
         from .network import LavaActor
     except ImportError as error:
         raise UserError(f"Lava is not importable here ({error}): run `bash scripts/setup-lava` and use "
                         ".venv-lava/bin/python (or `ilcsan lava`, which does)") from None
-    calibration = []
-    if args.fixed_point:
-        calibration = [_encoded(reference, observation) for observation in
-                       _episode_observations(reference, task, CALIBRATION_SEED, CALIBRATION_OBSERVATIONS)]
-    return LavaActor(actor, fixed=args.fixed_point, calibration=calibration)
+    return LavaActor(actor, fixed=args.fixed_point, calibration=_calibration(args, reference, task))
+
+
+class _MirrorEngine:
+    """The planned network run by :func:`~.plan.simulate` (``--engine mirror``), float or fixed point."""
+
+    def __init__(self, args: argparse.Namespace, actor: DeployedActor, reference: DeployedActor, task: str):
+        self.actor, self.plan = actor, plan_actor(actor)
+        self.fixed = fix_plan(self.plan, _calibration(args, reference, task)) if args.fixed_point else None
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        voltages, _ = simulate(self.plan, _encoded(self.actor, observation), self.fixed)
+        output = select_statistic(voltages.astype(np.float32), str(self.actor.meta["statistic"]))
+        return squash(output, self.actor.action_scale, self.actor.action_offset)
+
+    def close(self) -> None:
+        pass
 
 
 class _NumpyEngine:
@@ -102,7 +125,8 @@ def run(args: argparse.Namespace) -> dict:
     reference = DeployedActor.load(path)
     task = args.task or str(actor.meta["task"])
     start = time.perf_counter()
-    engine = _NumpyEngine(actor) if args.engine == "numpy" else _lava_actor(args, actor, reference, task)
+    engine = (_NumpyEngine(actor) if args.engine == "numpy" else _MirrorEngine(args, actor, reference, task)
+              if args.engine == "mirror" else _lava_actor(args, actor, reference, task))
     returns, lengths, seconds, errors = [], [], [], []
     try:
         for episode in range(args.episodes):
@@ -123,7 +147,8 @@ def run(args: argparse.Namespace) -> dict:
                   f"{seconds[-1]:.0f} s ({seconds[-1] / steps * 1e3:.0f} ms per action)", flush=True)
     finally:
         engine.close()
-    mode = "numpy runtime" if args.engine == "numpy" else "fixed_pt" if args.fixed_point else "floating_pt"
+    mode = "numpy runtime" if args.engine == "numpy" else \
+        ("fixed_pt" if args.fixed_point else "floating_pt") + (", numpy mirror" if args.engine == "mirror" else "")
     result = {"bundle": str(path), "task": task, "mode": mode,
               "returns": returns, "lengths": lengths, "episode_seconds": seconds,
               "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),

@@ -10,8 +10,9 @@ them (checked against their source):
 With du = 1 − α_C, dv = 1 − α_V and V_reset = 0 this is the paper's CLIF (Algorithm 1): C_t = α_C C_{t−1} + X_t,
 H_t = α_V V_{t−1} + C_t, S_t = Θ(H_t − V_th), hard reset (Lava fires on v > v_th, Algorithm 1 on H ≥ V_th: equal
 unless a voltage lands exactly on the threshold). Lava's floating-point models compute in float64, PyTorch and the
-numpy runtime in float32: a voltage within float32 rounding of V_th (≈ 1e-7) can spike in one and not the other. The LI readout (Eq. (7)) is an LIF with du = 1 (u = a_in, no
-memory), dv = 1 − α_V^LI and a threshold never reached.
+numpy runtime in float32: a voltage within float32 rounding of V_th (≈ 1e-7) can spike in one and not the other.
+The LI readout (Eq. (7)) is an LIF with du = 1 (u = a_in, no memory), dv = 1 − α_V^LI and a threshold never
+reached.
 
 Timing. Synaptic layer l (1..n, n = L + 1, the output layer last) computes its step t at Lava step τ = t + l: each
 Dense adds one step, which only shifts the pipeline. A layer's bias b^l is part of its input current X_t (it decays
