@@ -11,11 +11,7 @@ import numpy as np
 
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.lava.network import LavaActor
-from ilcsan.deploy.lava.plan import plan_actor, simulate
-
-
-def encoded(actor: DeployedActor, observation: np.ndarray) -> np.ndarray:
-    return actor.spike_trains(observation)[0].astype(np.float64)
+from ilcsan.deploy.lava.plan import encoder_spikes, plan_actor, simulate
 
 
 def main(folder: Path) -> None:
@@ -32,7 +28,7 @@ def main(folder: Path) -> None:
             lava.close()
         result = {"actions": actions, "spikes": counts}
         if bundle.stem in fixed_names:
-            calibration = [encoded(actor, observation) for observation in observations]
+            calibration = [encoder_spikes(actor, observation) for observation in observations]
             lava = LavaActor(actor, fixed=True, calibration=calibration)
             try:
                 gaps = [float(np.abs(lava.voltages(train) - simulate(lava.plan, train, lava.fixed)[0]).max())

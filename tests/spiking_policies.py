@@ -7,6 +7,8 @@ import numpy as np
 import torch
 
 from ilcsan.config import INTRA_MASKS, actor_config
+from ilcsan.deploy import DeployedActor
+from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.policy import Policy
 from ilcsan.snn.actor import build_actor
 
@@ -53,6 +55,11 @@ FULLY_SPIKING = [
     ("ilc-san", {"intra_timing": "authors", "intra": "self"}),  # no bias: the same actor as the paper's timing
 ]
 """Every fully spiking actor the deploy paths take: (preset, switches)."""
+
+
+def deployed(policy: Policy) -> DeployedActor:
+    """The policy's deploy bundle, loaded by the numpy runtime without a file."""
+    return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
 
 
 def case_id(case) -> str:

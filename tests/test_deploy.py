@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from spiking_policies import FULLY_SPIKING, HAND_SOP, case_id, hand_made_policy, observations, random_policy
+from spiking_policies import FULLY_SPIKING, HAND_SOP, case_id, deployed, hand_made_policy, observations, random_policy
 
 import ilcsan.deploy.runtime
 from ilcsan.analysis.energy import energy_report, measure_firing_rates
@@ -24,10 +24,6 @@ from ilcsan.errors import UserError
 
 RUNTIME_FOLDER = Path(ilcsan.deploy.runtime.__file__).parent
 TOLERANCE = 1e-4
-
-def deployed(policy) -> DeployedActor:
-    return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
-
 
 # --------------------------------------------------------------------------------- equality
 @pytest.mark.parametrize("case", FULLY_SPIKING, ids=case_id)

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from spiking_policies import FULLY_SPIKING, case_id, hand_made_policy, observations, random_policy
+from spiking_policies import FULLY_SPIKING, case_id, deployed, hand_made_policy, observations, random_policy
 
 from ilcsan.deploy import DeployedActor
-from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
+from ilcsan.deploy.bundle import export_npz
 from ilcsan.deploy.lava import LAVA_PYTHON_VARIABLE, lava_python
 from ilcsan.deploy.lava.plan import (
     DECAY_BITS,
@@ -26,11 +26,12 @@ from ilcsan.deploy.lava.plan import (
     EXPONENT_LIMITS,
     THRESHOLD_LIMIT,
     WEIGHT_LIMITS,
+    encoder_spikes,
     fix_plan,
+    host_action,
     plan_actor,
     simulate,
 )
-from ilcsan.deploy.runtime.host import select_statistic, squash
 from ilcsan.errors import UserError
 
 CLIF = [case for case in FULLY_SPIKING if case[1].get("neuron") != "dynamic"]
@@ -43,16 +44,10 @@ FIXED_CASES = ("ilc-san", "ilc-san-intra_timing=authors", "ilc-san-hidden=(40, 4
 TOLERANCE = 1e-5
 
 
-def deployed(policy) -> DeployedActor:
-    return DeployedActor.from_arrays(bundle_arrays(policy), bundle_meta(policy))
-
-
 def plan_action(actor: DeployedActor, observation: np.ndarray, fixed=None) -> tuple[np.ndarray, dict]:
-    trains = actor.spike_trains(observation)
     plan = fixed.plan if fixed is not None else plan_actor(actor)
-    voltages, recorded = simulate(plan, trains[0], fixed, record=True)
-    output = select_statistic(voltages.astype(np.float32), str(actor.meta["statistic"]))
-    return squash(output, actor.action_scale, actor.action_offset), recorded
+    voltages, recorded = simulate(plan, encoder_spikes(actor, observation), fixed, record=True)
+    return host_action(actor, voltages), recorded
 
 
 def layer_windows(recorded: dict, plan) -> list[np.ndarray]:

@@ -19,8 +19,7 @@ import numpy as np
 
 from ..runtime import DeployedActor
 from ..runtime.errors import UserError
-from ..runtime.host import select_statistic, squash
-from .plan import fix_plan, plan_actor, simulate
+from .plan import encoder_spikes, fix_plan, host_action, plan_actor, simulate
 
 EXIT_USER_ERROR = 2
 CALIBRATION_SEED = 10_000
@@ -68,15 +67,10 @@ def _episode_observations(actor: DeployedActor, task: str, seed: int, count: int
     return [seen[index] for index in picked]
 
 
-def _encoded(actor: DeployedActor, observation: np.ndarray) -> np.ndarray:
-    actor.spike_trains(observation)
-    return actor.workspace.trains[0].astype(np.float64)
-
-
 def _calibration(args: argparse.Namespace, reference: DeployedActor, task: str) -> list[np.ndarray]:
     if not args.fixed_point:
         return []
-    return [_encoded(reference, observation) for observation in
+    return [encoder_spikes(reference, observation) for observation in
             _episode_observations(reference, task, CALIBRATION_SEED, CALIBRATION_OBSERVATIONS)]
 
 
@@ -97,9 +91,8 @@ class _MirrorEngine:
         self.fixed = fix_plan(self.plan, _calibration(args, reference, task)) if args.fixed_point else None
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        voltages, _ = simulate(self.plan, _encoded(self.actor, observation), self.fixed)
-        output = select_statistic(voltages.astype(np.float32), str(self.actor.meta["statistic"]))
-        return squash(output, self.actor.action_scale, self.actor.action_offset)
+        voltages, _ = simulate(self.plan, encoder_spikes(self.actor, observation), self.fixed)
+        return host_action(self.actor, voltages)
 
     def close(self) -> None:
         pass

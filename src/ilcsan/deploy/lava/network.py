@@ -2,9 +2,10 @@
 
 ``LavaActor(actor, fixed=...)`` builds one ``RingBuffer`` (the encoder's spikes and the clocks), a ``Dense`` per
 projection and an ``LIF`` per population; ``act(observation)`` runs one block of B steps with the host's encoder
-spikes, reads the LI voltages V_1..V_T and applies the statistic and tanh on the host, then sets every state back to
-zero for the next action. Floating point runs ``Loihi2SimCfg(select_tag="floating_pt")``; fixed point the bit-accurate
-models (``select_tag="fixed_pt"``) with the integer formats of :class:`~.plan.FixedPlan`.
+spikes, reads the LI voltages V_1..V_T (only V_T for D_last) and applies the statistic and tanh on the host, then
+sets every state back to zero for the next action. Floating point runs ``Loihi2SimCfg(select_tag="floating_pt")``;
+fixed point the bit-accurate models (``select_tag="fixed_pt"``) with the integer formats of
+:class:`~.plan.FixedPlan`.
 
 Needs ``lava-nc`` (Python 3.10; ``scripts/setup-lava``).
 """
@@ -21,8 +22,18 @@ from lava.proc.monitor.process import Monitor
 from lava.utils.weightutils import SignMode
 
 from ..runtime import DeployedActor
-from ..runtime.host import select_statistic, squash
-from .plan import DECODER, INPUT, NEVER, STATE_SHIFT, THRESHOLD_LIMIT, FixedPlan, fix_plan, plan_actor
+from .plan import (
+    DECODER,
+    INPUT,
+    NEVER,
+    STATE_SHIFT,
+    THRESHOLD_LIMIT,
+    FixedPlan,
+    encoder_spikes,
+    fix_plan,
+    host_action,
+    plan_actor,
+)
 
 
 class LavaActor:
@@ -106,19 +117,10 @@ class LavaActor:
             if projection.source != INPUT:
                 dense.a_buff.set(np.zeros(projection.weights.shape[0], kind))
 
-    def output(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(O, the encoder's spikes) for one raw observation: host encoder, Lava network, host statistic."""
-        actor = self.actor
-        actor.spike_trains(observation)  # the host side: normaliser and encoder (the runtime's own)
-        encoded = actor.workspace.trains[0].astype(np.float64)
-        statistic = str(actor.meta["statistic"])
-        voltages = self.voltages(encoded, every_step=statistic != "last")
-        return select_statistic(voltages.astype(np.float32), statistic), encoded
-
     def act(self, observation: np.ndarray) -> np.ndarray:
-        """The action for one raw observation (N,) → (M,)."""
-        output, _ = self.output(observation)
-        return squash(output, self.actor.action_scale, self.actor.action_offset)
+        """The action for one raw observation (N,) → (M,): host encoder, Lava network, host statistic and tanh."""
+        every_step = str(self.actor.meta["statistic"]) != "last"
+        return host_action(self.actor, self.voltages(encoder_spikes(self.actor, observation), every_step))
 
     def spike_counts(self) -> dict[str, int]:
         """Spikes each monitored layer emitted in its T steps of every block so far (``monitor_steps`` > 0, a

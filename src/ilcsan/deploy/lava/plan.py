@@ -43,6 +43,7 @@ import numpy as np
 
 from ..runtime import DeployedActor
 from ..runtime.errors import UserError
+from ..runtime.host import select_statistic, squash
 
 INPUT = "input"
 """The host's source of each block: the encoder's spikes and the clock channels."""
@@ -193,6 +194,18 @@ def _dense(synapses) -> np.ndarray:
     """A layer's weights as the runtime stores them, as floats (an int8 layer times its scale)."""
     weights = np.asarray(synapses.weights, np.float64)
     return weights * synapses.scale if synapses.scale is not None else weights
+
+
+# ------------------------------------------------------------------------------------------------ host
+def encoder_spikes(actor: DeployedActor, observation: np.ndarray) -> np.ndarray:
+    """The host's side before the network: normaliser and encoder (the runtime's own) → spikes (T, D_0) as floats."""
+    return actor.spike_trains(observation)[0].astype(np.float64)
+
+
+def host_action(actor: DeployedActor, voltages: np.ndarray) -> np.ndarray:
+    """The host's side after the network: LI voltages (T or 1, M) → the statistic O (Eq. (8)), tanh, the action."""
+    output = select_statistic(np.asarray(voltages).astype(np.float32), str(actor.meta["statistic"]))
+    return squash(output, actor.action_scale, actor.action_offset)
 
 
 # ---------------------------------------------------------------------------------------------- simulate

@@ -5,7 +5,8 @@ Layout: ``input`` (D_0 = N·P_in spikes per step) → ``layer1_fc`` Affine → `
 holds W_D^m on population m, bias b_D) → [``li``: target ``generic`` only] → ``output``. The intra-layer
 connections (Eq. (10)) are ``layer{L+1}_intra``, a block-diagonal nir.Linear on the recurrent edge lif ↔ intra. For
 the ``fr`` decoder (PopSAN) the graph ends at the output population's spikes; the group FC stays on the host.
-Consumers order the nodes by the edges, not by name (``nir.read`` returns them alphabetically).
+Norse 1.1.0 and snnTorch 1.0.0 (through NIRTorch 2.6) order the nodes by the edges, not by name (``nir.read``
+returns them alphabetically; tests/test_nir_consumers.py runs both).
 
 Targets. ``portable`` (default): the decoder's LI neuron (Eq. (7)) runs on the host — snnTorch 1.0.0 and
 Norse 1.1.0 map neither nir.LI nor nir.I — and the graph's output is its input X_t = W_D S_t + b_D per step.
