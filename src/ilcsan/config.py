@@ -345,6 +345,9 @@ class TD3Config:
     exploration: str = setting("gaussian", "how the actor explores: TD3's Gaussian action noise (the paper), or "
                                            "NoisySAN's coloured noise inside the spiking neurons (Chen et al. "
                                            "2024; spiking actors only)", choices=EXPLORATION_PAPERS)
+    preaction_penalty: float = setting(0.0, "weight λ of a penalty λ·mean(O²) on the actor's pre-tanh output O, added "
+                                            "to the actor's loss (0: the paper; > 0 pulls a saturated actor back "
+                                            "into tanh's range)", bounds="non-negative")
     noisy_sigma: float = setting(0.5, "NoisySAN: sigma_init; a layer of D neurons gets the fixed noise scale "
                                       "sigma_init/sqrt(D) on charge and transmission, the decoder's learned "
                                       "scale starts at sigma_init/sqrt(M)", bounds="positive")

@@ -151,7 +151,7 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
 RUN_SETTINGS = ("eval_every", "eval_episodes", "device", "engine", "threads", "compile", "matmul",
                 "checkpoint_minutes")
 """The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
-TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size", "target_actor",
+TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size", "preaction_penalty", "target_actor",
                 "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma", "noisy_beta", "noisy_return_reference")
 """The :class:`~ilcsan.config.TD3Config` fields ``train`` offers."""
 

@@ -72,12 +72,20 @@ class TD3Update:
     def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
                    critic: Callable | None = None, method_parameters: list | None = None) -> torch.Tensor:
         """Σ_k −mean_b Q_1(s, π(s)) plus the exploration method's terms, π(s) as the method evaluates it
-        (:meth:`~ilcsan.rl.methods.Exploration.actor_action`); ``method_parameters`` are the method's tensors."""
+        (:meth:`~ilcsan.rl.methods.Exploration.actor_action`); ``method_parameters`` are the method's tensors.
+        With ``td3.preaction_penalty`` λ > 0 it adds Σ_k λ mean_{b,m} O², O the pre-tanh output of that same π(s)."""
         agent = self.agent
         exploration = agent.exploration
         parameters = method_parameters if method_parameters is not None else module_parameters(exploration.module)
-        action = exploration.actor_action(actor or agent.actor, batch, parameters)
+        actor = actor or agent.actor
+        penalty = agent.td3.preaction_penalty
+        preactions: list[torch.Tensor] = []
+        if penalty:
+            actor = recording_preaction(actor, preactions)
+        action = exploration.actor_action(actor, batch, parameters)
         loss = -(critic or agent.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
+        if penalty:
+            loss = loss + penalty * (preactions[0] ** 2).mean(dim=(-2, -1)).sum()
         extra = exploration.loss_terms(parameters, batch)
         return loss if extra is None else loss + extra
 
@@ -141,6 +149,15 @@ class TD3Update:
                 critic_loss, actor_loss = self.delayed_step(tensors, batch, noise)
                 return critic_loss, actor_loss
             return self.critic_step(tensors, batch, noise), None
+
+
+def recording_preaction(actor: Callable, preactions: list[torch.Tensor]) -> Callable:
+    """``actor`` as a function of states that returns the action and appends its pre-tanh output O to ``preactions``."""
+    def acting(states: torch.Tensor, **kwargs) -> torch.Tensor:
+        action, preaction = actor(states, with_preaction=True, **kwargs)
+        preactions.append(preaction)
+        return action
+    return acting
 
 
 def module_parameters(module: torch.nn.Module | None) -> list[torch.Tensor]:

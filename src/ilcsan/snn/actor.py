@@ -155,9 +155,12 @@ class SpikingActor(_Actor):
             return run_reference(self, state, noise, membranes)
         return self._run_layer_major(state, noise, membranes)
 
-    def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None) -> torch.Tensor:
-        """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given."""
-        return self.run(state, noise=noise).action
+    def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None,
+                with_preaction: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given;
+        ``with_preaction`` also returns the pre-tanh output O (K, B, M)."""
+        output = self.run(state, noise=noise)
+        return (output.action, output.readout) if with_preaction else output.action
 
     def noise_widths(self) -> tuple[int, ...]:
         """The widths D_l of the synaptic layers' outputs, whose neurons NoisySAN perturbs."""
@@ -182,8 +185,10 @@ class DeepActor(_Actor):
         output = self.mlp(state)
         return ActorOutput(self.squash(output), (state,), None, None, output)
 
-    def forward(self, state: torch.Tensor) -> torch.Tensor:
-        return self.squash(self.mlp(state))
+    def forward(self, state: torch.Tensor,
+                with_preaction: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        output = self.mlp(state)
+        return (self.squash(output), output) if with_preaction else self.squash(output)
 
 
 def build_actor(config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
