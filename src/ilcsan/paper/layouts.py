@@ -147,7 +147,7 @@ al. 2024) against plain ILC-SAN and DAN on Hopper, 5 seeds × 200 000 steps by d
 
 FIDELITY = TableSpec(
     name="fidelity",
-    caption="Hopper's collapsed start: the intra-layer timing of Algorithm 1 against the authors' code's, and two remedies",
+    caption="Hopper's collapsed start: Algorithm 1's intra-layer timing, the authors' code's, and two remedies",
     tasks=("Hopper",),
     rows=(
         RowSpec("paper", "ILC-SAN, intra timing of Algorithm 1", "ilc-san", {"intra_timing": "paper"}),
