@@ -308,6 +308,7 @@ def test_untagged_runs_are_placed_in_a_table_by_their_configuration(tmp_path: Pa
     trained_run(tmp_path, "Hopper", 0, [900], hidden=(64, 64))  # another actor: in no row of the paper
     trained_run(tmp_path, "Hopper", 0, [3500], td3={"target_actor": "proxy"})
     trained_run(tmp_path, "Hopper", 0, [3300], td3={"exploration": "noisy"})
+    trained_run(tmp_path, "Hopper", 2, [100], td3={"preaction_penalty": 0.1})  # another objective: in no row
     runs = collect_runs(tmp_path)
     perf = build_table(runs, "perf")
     cell = perf.cell("ilc-san-pop-det", "Hopper")

@@ -215,8 +215,8 @@ def _parse_result(result: Mapping[str, Any],
     return best_return, best_step, steps_done, steps_total, finished
 
 
-METHOD_SETTINGS = ("target_actor", "exploration")
-"""The TD3 settings that choose a training method (the rows of Table beyond differ in them)."""
+METHOD_SETTINGS = ("target_actor", "exploration", "preaction_penalty")
+"""The TD3 settings that change how the actor is trained (the rows of Table beyond differ in them)."""
 
 
 def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any]) -> str:
