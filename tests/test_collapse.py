@@ -12,6 +12,7 @@ import pytest
 from ilcsan.analysis.collapse import (
     collapse_markdown,
     collapse_rows,
+    diagnostic_panels,
     fisher_exact,
     plot_diagnostics,
     wilson_interval,
@@ -66,6 +67,17 @@ def test_the_diagnostics_figure_is_drawn(tmp_path):
     runs = [record(0, [39, 39], diagnostics), record(1, [39, 400], {k: (0.2, 0.1) for k in diagnostics})]
     path = plot_diagnostics({"paper": runs}, tmp_path / "diagnostics.png", collapsed_at=20_000, until=50_000)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
+
+
+def test_the_figure_leaves_out_runs_without_diagnostics_and_draws_only_logged_columns():
+    """Runs of the authors' code log returns only; older runs lack the later diagnostics."""
+    older = {"saturated_actions": (1.0, 0.5), "frozen_output_neurons": (1.0, 0.2)}
+    groups = {"paper": [record(0, [39, 400], older)], "authors' code": [record(1, [39, 39], {})],
+              "late": [record(2, [39, 39], {**older, "surrogate_active": (0.1, float("nan"))})]}
+    logged, names = diagnostic_panels(groups, until=50_000)
+    assert list(logged) == ["paper", "late"]
+    assert names == ["saturated_actions", "frozen_output_neurons", "surrogate_active"]
+    assert diagnostic_panels(groups, until=5_000) == ({}, [])  # nothing logged before the first evaluation
 
 
 def write_run(folder: Path, seed: int, row: str, returns: list[float]) -> None:

@@ -129,10 +129,8 @@ def plot_diagnostics(groups: Mapping[str, Sequence[RunRecord]], path: str | Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labelled = {label: [run for run in runs if run.diagnostics] for label, runs in groups.items()}
-    labelled = {label: runs for label, runs in labelled.items() if runs}
-    drawn = [name for name in DIAGNOSTICS if any(_series(run, name, until)[0] for runs in labelled.values()
-                                                  for run in runs)] or list(DIAGNOSTICS)  # runs' own columns
+    labelled, drawn = diagnostic_panels(groups, until)
+    drawn = drawn or list(DIAGNOSTICS)
     figure, axes = plt.subplots(len(labelled) or 1, len(drawn), figsize=(4 * len(drawn), 3 * max(1, len(labelled))),
                                 squeeze=False)
     for row_axes, (label, runs) in zip(axes, labelled.items(), strict=False):
@@ -148,6 +146,8 @@ def plot_diagnostics(groups: Mapping[str, Sequence[RunRecord]], path: str | Path
                     state = "collapsed" if collapsed else "left"
                     axis.plot(*median, color=colour, linewidth=2.2,
                               label=f"{state} at {collapsed_at // 1000}k ({len(chosen)})")
+            if not any(_series(run, name, until)[0] for run in runs):
+                axis.text(0.5, 0.5, "not logged by these runs", ha="center", va="center", transform=axis.transAxes)
             axis.set_title(f"{label}\n{name}", fontsize=9)
             axis.set_xlabel("environment steps")
             axis.grid(alpha=0.3)
@@ -157,6 +157,18 @@ def plot_diagnostics(groups: Mapping[str, Sequence[RunRecord]], path: str | Path
     atomic_write_file(path, lambda temporary: figure.savefig(temporary, dpi=110, format="png"))
     plt.close(figure)
     return path
+
+
+def diagnostic_panels(groups: Mapping[str, Sequence[RunRecord]],
+                      until: int) -> tuple[dict[str, list[RunRecord]], list[str]]:
+    """What the figure draws: each group's runs that logged a diagnostic up to ``until`` (groups with none, such as
+    runs of the authors' code, left out), and every diagnostic one of them logged, in :data:`DIAGNOSTICS` order."""
+    logged = {label: [run for run in runs if any(_series(run, name, until)[0] for name in DIAGNOSTICS)]
+              for label, runs in groups.items()}
+    logged = {label: runs for label, runs in logged.items() if runs}
+    names = [name for name in DIAGNOSTICS
+             if any(_series(run, name, until)[0] for runs in logged.values() for run in runs)]
+    return logged, names
 
 
 def _series(run: RunRecord, name: str, until: int) -> tuple[list[int], list[float]]:
