@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from ilcsan.cli import main
 from ilcsan.errors import UserError
-from ilcsan.experiments.backends import RayBackend, ray_node_address
+from ilcsan.experiments.backends import RayBackend, ray_node_address, termination_as_ctrl_c
 from ilcsan.experiments.coordinator import run_grid
 from ilcsan.experiments.estimate import estimate_hours, list_tables, row_step_cost
 from ilcsan.experiments.grid import GridOptions, expand_grid
@@ -458,3 +463,53 @@ def test_cli_runs_a_shrunk_grid_and_then_skips_it(tmp_path, capsys):
     assert str(tmp_path / "out" / "tiny" / "report.md") in out
     code, out, _ = run_cli(capsys, *argv)
     assert code == 0 and "skip   Pendulum-v1/pop seed(s) 3: finished" in out and "nothing to train" in out
+
+
+# ------------------------------------------------------------------------------------------------
+# SIGTERM
+
+
+def test_sigterm_inside_the_block_is_ctrl_c_and_the_handler_is_restored_after():
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt), termination_as_ctrl_c():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler runs at the next bytecode; never reached
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def _children(pid: int) -> set[int]:
+    """The processes whose parent is ``pid`` (Linux /proc)."""
+    children = set()
+    for status in Path("/proc").glob("[0-9]*/status"):
+        with contextlib.suppress(OSError):
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines() if ":\t" in line)
+            if int(fields.get("PPid", "0")) == pid:
+                children.add(int(status.parent.name))
+    return children
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the process tree from Linux's /proc")
+def test_sigterm_stops_reproduce_and_its_workers(tmp_path):
+    """`kill` (or a scheduler's preemption) on `ilcsan reproduce` stops it as Ctrl-C does (exit 130, the worker's job
+    interrupted at its last checkpoint) and must not leave the worker training on, orphaned."""
+    command = [sys.executable, "-m", "ilcsan.cli", "reproduce", str(grid_file(tmp_path)), "--rows", "ilc",
+               "--tasks", "Pendulum-v1", "--seeds", "0", "--steps", "200000", "--workers", "1",
+               "--out", str(tmp_path / "out")]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+    for line in process.stdout:
+        if line.startswith("[start]"):
+            break
+    worker_log = tmp_path / "out" / "tiny" / "logs" / "Pendulum-v1--ilc--s0.log"
+    deadline = time.monotonic() + 120
+    while "from step 0" not in (worker_log.read_text() if worker_log.exists() else "") and time.monotonic() < deadline:
+        time.sleep(0.2)
+    workers = _children(process.pid)
+    assert workers and process.poll() is None, "the grid should be training in a worker by now"
+    process.send_signal(signal.SIGTERM)
+    stdout, _ = process.communicate(timeout=120)
+    assert process.returncode == 130 and "run the same command again to continue" in stdout
+    deadline = time.monotonic() + 30
+    while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(Path(f"/proc/{pid}").exists() for pid in workers), "a worker outlived the coordinator"

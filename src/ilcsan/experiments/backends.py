@@ -22,6 +22,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
 from collections.abc import Sequence
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Protocol
@@ -46,6 +47,25 @@ def _run_job_stopped_by_ctrl_c(job: Job) -> JobOutcome:
         return run_job(job)
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def termination_as_ctrl_c():
+    """Within the block, SIGTERM (``kill``, a cluster scheduler's preemption) raises KeyboardInterrupt as Ctrl-C does,
+    so the coordinator stops its running jobs at their last checkpoint instead of dying and leaving its workers to
+    train on, orphaned. Outside the main thread (where no handler can be set) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 # ------------------------------------------------------------------------------------------ backends

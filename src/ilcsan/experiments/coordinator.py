@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.report import write_report
-from .backends import Backend, LocalBackend, make_backend
+from .backends import Backend, LocalBackend, make_backend, termination_as_ctrl_c
 from .grid import Grid, GridRun
 from .jobs import Job, JobOutcome, RunState, balance_jobs, format_seeds, group_jobs, max_seeds_per_job, run_state
 from .progress import Progress, format_duration
@@ -67,7 +67,7 @@ def run_grid(grid: Grid, backend: str | Backend = "local", workers: int | None =
     """Run every unfinished run of ``grid`` on ``backend`` and write the report; see the module docstring.
 
     ``on_event(kind, job)`` is called on ``start``, ``finish`` and ``fail`` of each job (a hook for
-    tests and tools). Ctrl-C stops the running jobs, each keeping its last checkpoint.
+    tests and tools). Ctrl-C or SIGTERM stops the running jobs, each keeping its last checkpoint.
     """
     started = time.monotonic()
     states = {run.key: run_state(run.directory, run.config) for run in grid.runs}
@@ -83,7 +83,8 @@ def run_grid(grid: Grid, backend: str | Backend = "local", workers: int | None =
     executor = make_backend(backend, workers, address, dashboard) if isinstance(backend, str) else backend
     progress = Progress.start(grid, states)
     try:
-        outcome = keep_slots_busy(grid, executor, jobs, progress, log, on_event, poll_seconds, heartbeat_seconds)
+        with termination_as_ctrl_c():
+            outcome = keep_slots_busy(grid, executor, jobs, progress, log, on_event, poll_seconds, heartbeat_seconds)
     finally:
         executor.close()
     summary.update(outcome)
