@@ -497,6 +497,19 @@ def test_sigterm_stops_reproduce_and_its_workers(tmp_path):
                "--out", str(tmp_path / "out")]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        _stop_reproduce_with_sigterm(process, tmp_path)
+    finally:
+        if process.poll() is None:  # a failed check leaves no 200 000-step grid behind
+            workers = _children(process.pid)
+            process.kill()
+            process.communicate()
+            for pid in workers:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+
+
+def _stop_reproduce_with_sigterm(process: subprocess.Popen, tmp_path: Path) -> None:
     for line in process.stdout:
         if line.startswith("[start]"):
             break

@@ -155,8 +155,10 @@ def keep_slots_busy(grid: Grid, backend: Backend, jobs: list[Job], progress: Pro
                 log(progress.line())
                 last_line = time.monotonic()
     except KeyboardInterrupt:
-        log(f"stopping {len(running)} running job(s); each keeps its last checkpoint ...")
-        backend.interrupt(list(running))
+        try:
+            log(f"stopping {len(running)} running job(s); each keeps its last checkpoint ...")
+        finally:  # the workers stop even when the log cannot be written (its reader gone)
+            backend.interrupt(list(running))
         return {"failed": tuple(failed), "interrupted": True, "diverged": diverged}
     return {"failed": tuple(failed), "interrupted": False, "diverged": diverged}
 
