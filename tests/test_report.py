@@ -7,6 +7,7 @@ import dataclasses
 import io
 import json
 import math
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -55,7 +56,7 @@ def intra_run(root: Path, task: str, row: str, seed: int, returns: list[float], 
 # Cells: max average reward, mean ± std over seeds
 
 
-def test_cell_is_mean_and_population_std_of_each_seeds_best_evaluation(tmp_path: Path) -> None:
+def test_cell_is_mean_and_sample_std_of_each_seeds_best_evaluation(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3200])
     intra_run(tmp_path, "Hopper", "intra", 1, [3600, 2000, 3000])
     intra_run(tmp_path, "Hopper", "intra", 2, [10, 20, 3650], result=False)  # still running: metrics.csv
@@ -63,9 +64,17 @@ def test_cell_is_mean_and_population_std_of_each_seeds_best_evaluation(tmp_path:
     assert cell.scores == (3500, 3600, 3650)
     assert cell.n == 3 and cell.running == 1
     assert cell.mean == pytest.approx(10750 / 3)
-    # deviations −250/3, 50/3, 200/3 → variance (62500 + 2500 + 40000) / 9 / 3 (ddof=0)
-    assert cell.std == pytest.approx(math.sqrt(35000 / 9))
-    assert cell.std != pytest.approx(np.std([3500, 3600, 3650], ddof=1))
+    # deviations −250/3, 50/3, 200/3 → variance (62500 + 2500 + 40000) / 9 / (3 − 1) (ddof=1)
+    assert cell.std == pytest.approx(math.sqrt(35000 / 6))
+    assert cell.std != pytest.approx(np.std([3500, 3600, 3650], ddof=0))
+
+
+def test_a_one_seed_cell_shows_its_mean_without_a_spread(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3200])
+    cell = build_table(collect_runs(tmp_path), "intra").cell("intra", "Hopper")
+    assert (cell.n, cell.mean, cell.std) == (1, 3500, None)
+    markdown = (write_report(tmp_path)["markdown"]).read_text()
+    assert re.search(r"\| (\*\*)?3500(\*\*)? \(n=1\) ·", markdown), "one seed: its mean, no ± and no crash"
 
 
 def test_the_report_states_the_budget_and_flags_short_cells_beside_the_papers_values(tmp_path: Path) -> None:
@@ -100,10 +109,10 @@ def test_paper_value_appears_beside_ours_for_a_known_cell(tmp_path: Path) -> Non
     cell = result.cell("intra", "Hopper")
     assert (cell.paper.mean, cell.paper.std) == (3583, 86)
     markdown = render_markdown(result)
-    assert "**3583 ± 62** (n=3) · paper 3583 ± 86" in markdown
+    assert "**3583 ± 76** (n=3) · paper 3583 ± 86" in markdown
     assert "paper 98.61%" in markdown  # the published APR of I_intra
     latex = render_latex(result)
-    assert r"\textbf{3583 $\pm$ 62} {\scriptsize (n=3; paper 3583 $\pm$ 86)}" in latex
+    assert r"\textbf{3583 $\pm$ 76} {\scriptsize (n=3; paper 3583 $\pm$ 86)}" in latex
     lines = list(csv.DictReader(io.StringIO(render_csv(result))))
     (line,) = [line for line in lines if line["row"] == "intra" and line["task"] == "Hopper"]
     assert float(line["mean"]) == pytest.approx(10750 / 3)
@@ -116,7 +125,7 @@ def test_the_beyond_table_prints_what_later_papers_published_under_ours_for_its_
     make_run(tmp_path, "Hopper", 0, "ILC-SAN", [1500.0], table="beyond", row="ilc-san")
     markdown = render_markdown(build_table(collect_runs(tmp_path), "beyond"))
     ours, published = markdown.split("Published by Xu et al., Proxy Target")
-    assert "**1500 ± 0** (n=1)" in ours and "3526" not in ours, "published numbers stay out of our cells"
+    assert "**1500** (n=1)" in ours and "3526" not in ours, "published numbers stay out of our cells"
     assert "| PT-CLIF (pop-SAN-style CLIF actor + Proxy Target) | 3526 ± 112 |" in published
     assert "| ILC-SAN | 3403 ± 148 |" in published and "Walker2d" not in published  # only this table's tasks
     assert "NoisySAN (Chen et al., arXiv 2403.04162): no results table" in published
@@ -135,7 +144,7 @@ def test_the_beyond_rows_that_ran_the_papers_actors_show_its_table_perf_cells_bu
     assert result.cell("ilc-san+proxy", "Hopper").paper is None  # the paper never ran Proxy Target
     markdown = render_markdown(result)
     ilc = next(line for line in markdown.splitlines() if line.startswith("| ILC-SAN |"))
-    assert ilc == "| ILC-SAN | 3000 ± 0 (n=1) · paper 3583 ± 86 | 88.24% |"  # APR 3000/3400, no published APR
+    assert ilc == "| ILC-SAN | 3000 (n=1) · paper 3583 ± 86 | 88.24% |"  # APR 3000/3400, no published APR
     assert "Steps per seed run: 1 000 000." in markdown
 
 
@@ -188,7 +197,7 @@ def test_a_task_outside_the_table_is_an_extra_column_without_the_papers_numbers(
     header = next(line for line in render_markdown(result).splitlines() if line.startswith("| Row"))
     assert header.endswith("| InvertedDoublePendulum | Pendulum-v1 | APR |")
     row = next(line for line in render_markdown(result).splitlines() if line.startswith("| I\\_self"))
-    assert "-150 ± 0** (n=1) |" in row and row.count("paper") == 4 + 1, "paper values for the 4 tasks and APR"
+    assert "-150** (n=1) |" in row and row.count("paper") == 4 + 1, "paper values for the 4 tasks and APR"
     assert ("intra", "self", "Pendulum-v1") in {(line[0], line[1], line[3]) for line in
                                                 csv.reader(render_csv(result).splitlines()[1:])}
 
@@ -240,8 +249,8 @@ def test_bold_marks_the_true_best_of_each_column(tmp_path: Path) -> None:
     assert best_ant == ["self"]
     assert sorted(row.key for row in result.rows if row.cell("Hopper").best) == ["none", "self"]
     markdown = render_markdown(result)
-    assert "**3100 ± 0** (n=1)" in markdown
-    assert "3000 ± 2000 (n=2)" in markdown and "**3000 ± 2000**" not in markdown
+    assert "**3100** (n=1)" in markdown
+    assert "3000 ± 2828 (n=2)" in markdown and "**3000 ± 2828**" not in markdown  # std ddof=1: 4000/√2
 
 
 # ------------------------------------------------------------------------------------------------
@@ -260,7 +269,7 @@ def test_untagged_runs_make_rows_by_label_and_columns_by_task(tmp_path: Path) ->
     assert mine.cell("Hopper").mean == 1500 and mine.cell("Pendulum-v1").mean == -150
     assert mine.apr == pytest.approx(150.0) and mine.apr_tasks == 1
     assert result.row("DAN").cell("Pendulum-v1").n == 0
-    assert "**-150 ± 0** (n=1)" in render_markdown(result)  # the only run of its column is the best
+    assert "**-150** (n=1)" in render_markdown(result)  # the only run of its column is the best
 
 
 def test_number_format_follows_the_paper_and_keeps_small_returns_readable() -> None:
@@ -345,7 +354,7 @@ def test_a_corrupt_run_is_skipped_and_reported(tmp_path: Path) -> None:
     markdown = paths["markdown"].read_text()
     assert "## Skipped runs" in markdown
     assert f"- `{bad_json}`: config.json: invalid JSON" in markdown
-    assert "**3500 ± 0** (n=1) · paper 3583 ± 86" in markdown
+    assert "**3500** (n=1) · paper 3583 ± 86" in markdown
 
 
 def test_header_only_metrics_is_skipped(tmp_path: Path) -> None:
@@ -403,7 +412,7 @@ def test_cmd_report_accepts_a_grid_file_and_rejects_unknown_tables(tmp_path: Pat
     assert cmd_report(args) == 0
     assert "1 run(s) found" in capsys.readouterr().out
     markdown = (tmp_path / "out" / "report.md").read_text()
-    assert "| ILC-SAN | **3500 ± 0** (n=1) | — |" in markdown
+    assert "| ILC-SAN | **3500** (n=1) | — |" in markdown
     assert report_layout("mine", collect_runs(runs)) == "mine"  # a tag found among the runs
     with pytest.raises(ValueError, match="no table 'intro'"):
         report_layout("intro", collect_runs(runs))
@@ -493,7 +502,7 @@ def test_write_report_writes_all_four_files(tmp_path: Path) -> None:
         assert rule in latex
     markdown = paths["markdown"].read_text()
     assert "## Table `intra`: Max average rewards" in markdown and "Runs without a table tag" in markdown
-    assert "ddof=0" in markdown
+    assert "ddof=1" in markdown
     lines = list(csv.DictReader(io.StringIO(paths["csv"].read_text())))
     assert {line["table"] for line in lines} == {"intra", ""}
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary files left

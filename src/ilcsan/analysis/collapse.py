@@ -21,6 +21,7 @@ from ..config import COLLAPSE_RETURN
 from ..files import atomic_write_file
 from ..snn.diagnostics import DIAGNOSTICS
 from .collect import RunRecord
+from .reward_tables import seed_std
 
 Z_95 = 1.959963984540054
 """The standard normal quantile of a two-sided 95 % interval."""
@@ -97,7 +98,8 @@ def collapse_rows(groups: Mapping[str, Sequence[RunRecord]], steps: Sequence[int
 def _mean_std(values: Sequence[float]) -> str:
     if not values:
         return "—"
-    return f"{np.mean(values):.0f} ± {np.std(values, ddof=1) if len(values) > 1 else 0.0:.0f}"
+    spread = seed_std(values)
+    return f"{np.mean(values):.0f}" if spread is None else f"{np.mean(values):.0f} ± {spread:.0f}"
 
 
 def collapse_markdown(rows: Sequence[CollapseRow], steps: Sequence[int], threshold: float = COLLAPSE_RETURN) -> str:

@@ -35,8 +35,10 @@ def format_stat(mean: float, std: float) -> str:
 
 
 def _our_stat(cell: Cell) -> str:
-    if cell.mean is None or cell.std is None:
+    if cell.mean is None:
         return ""
+    if cell.std is None:  # one seed: no spread
+        return f"{cell.mean:.{_decimals(cell.mean)}f}"
     return format_stat(cell.mean, cell.std)
 
 
@@ -85,7 +87,7 @@ def render_markdown(results: TableResult | Sequence[TableResult], skipped: Seque
         lines += _md_table(result)
     lines += [
         "Cell: max average reward, i.e. each seed run's best evaluation (mean return over its evaluation "
-        "episodes), as mean ± std over seeds (numpy std, ddof=0), n = number of seeds; bold = best of "
+        "episodes), as mean ± std over seeds (sample std, ddof=1), n = number of seeds; bold = best of "
         "the column; `—` = no runs (missing). APR = mean over tasks of (cell / DAN cell), only over tasks "
         "where both exist. \"paper\" = the published value for the same table, row and task (in a grid of our "
         "own, of the paper's table and row that ran the same actor and method).",
@@ -237,7 +239,7 @@ def render_latex(results: TableResult | Sequence[TableResult], skipped: Sequence
     """The tables as LaTeX ``table*`` environments with booktabs rules (needs ``\\usepackage{booktabs}``)."""
     results = [results] if isinstance(results, TableResult) else list(results)
     lines = ["% ILC-SAN reproduction report; requires \\usepackage{booktabs}",
-             "% Cells: mean $\\pm$ std over seeds (ddof=0) of each run's max average reward; -- = no runs."]
+             "% Cells: mean $\\pm$ std over seeds (ddof=1) of each run's max average reward; -- = no runs."]
     for result in results:
         label = f"tab:ours-{result.name}" if result.name else "tab:ours"
         lines += [

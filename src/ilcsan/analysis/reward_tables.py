@@ -1,8 +1,8 @@
 """The paper's reward tables built from runs: cells, rows, APR (Section V-A, Tables ``tab:perf`` … ``tab:layer``).
 
 * a run's score is its **max average reward**: the best evaluation's mean return over its episodes;
-* a cell is the mean ± std of the scores of its seed runs, ``numpy.std`` with ``ddof=0`` (population
-  standard deviation), with the number of seeds n;
+* a cell is the mean ± std of the scores of its seed runs, the sample standard deviation (``ddof=1``, as a
+  spread over 10 seeds is usually quoted; none for a single seed), with the number of seeds n;
 * APR = mean over tasks of (cell mean / DAN cell mean), in percent, **only over the tasks where both
   the row and DAN have runs** (the count is shown when it is fewer than the table's tasks). The DAN
   reference is, per task: the table's own DAN row if it has one, else the runs of Table ``perf``'s
@@ -32,6 +32,15 @@ from ..config import actor_config
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES, Stat, published_apr, published_cell
 from .collect import RunRecord, configuration_key, row_identity
+
+SEED_STD_DDOF = 1
+"""Spreads over seeds are sample standard deviations: ``numpy.std(..., ddof=1)``."""
+
+
+def seed_std(scores: Sequence[float]) -> float | None:
+    """Sample standard deviation of per-seed scores (``ddof=1``); None for fewer than two seeds, where it is
+    undefined."""
+    return float(np.std(scores, ddof=SEED_STD_DDOF)) if len(scores) > 1 else None
 
 
 @dataclass(frozen=True)
@@ -63,8 +72,8 @@ class Cell:
 
     @property
     def std(self) -> float | None:
-        """Population standard deviation over seeds (``numpy.std``, ``ddof=0``)."""
-        return float(np.std(self.scores, ddof=0)) if self.runs else None
+        """Sample standard deviation over seeds (:func:`seed_std`); None below two seeds."""
+        return seed_std(self.scores)
 
 
 @dataclass(frozen=True)
@@ -137,7 +146,7 @@ def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None)
     every cell present (``—`` where there are no runs), runs placed by their ``table``/``row`` tags, and
     untagged runs by their label (or row slug) matching a row's, else by their configuration. Any other name
     selects the runs tagged with it. None: all runs, rows by label (by tag when tagged), columns the tasks found.
-    See the module docstring for the statistics (mean ± std with ``ddof=0``, APR over tasks where both exist).
+    See the module docstring for the statistics (mean ± std with ``ddof=1``, APR over tasks where both exist).
     """
     spec = TABLES.get(table) if isinstance(table, str) else table
     if spec is not None:

@@ -41,7 +41,11 @@ def _print_results(results: list[dict[str, Any]], out: Path) -> None:
         print(f"best average evaluation return {r['best_return']:.1f} at step {r['best_step']} "
               f"(seed {r['seed']}, {r['steps_done']} steps); results in {out}")
     else:
-        print(f"best average evaluation return {np.mean(bests):.1f} ± {np.std(bests):.1f} over {len(bests)} seeds "
+        from ..analysis.reward_tables import seed_std
+
+        spread = seed_std(bests)
+        stat = f"{np.mean(bests):.1f}" + (f" ± {spread:.1f}" if spread is not None else "")
+        print(f"best average evaluation return {stat} over {len(bests)} seeds (sample std) "
               f"({', '.join(f'{b:.1f}' for b in bests)}); results in {out}/seed*")
 
 
