@@ -491,37 +491,44 @@ def _children(pid: int) -> set[int]:
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the process tree from Linux's /proc")
 def test_sigterm_stops_reproduce_and_its_workers(tmp_path):
     """`kill` (or a scheduler's preemption) on `ilcsan reproduce` stops it as Ctrl-C does (exit 130, the worker's job
-    interrupted at its last checkpoint) and must not leave the worker training on, orphaned."""
+    interrupted at its last checkpoint) and must not leave the worker training on, orphaned.
+
+    The grid runs in a session of its own, its output in a file: whatever fails, the cleanup kills the whole process
+    group, and no pipe held open by a surviving worker can keep the test waiting."""
     command = [sys.executable, "-m", "ilcsan.cli", "reproduce", str(grid_file(tmp_path)), "--rows", "ilc",
                "--tasks", "Pendulum-v1", "--seeds", "0", "--steps", "200000", "--workers", "1",
                "--out", str(tmp_path / "out")]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+    output = tmp_path / "reproduce.out"
+    with output.open("w") as sink:
+        process = subprocess.Popen(command, stdout=sink, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                                   env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
-        _stop_reproduce_with_sigterm(process, tmp_path)
+        _stop_reproduce_with_sigterm(process, output, tmp_path)
     finally:
-        if process.poll() is None:  # a failed check leaves no 200 000-step grid behind
-            workers = _children(process.pid)
-            process.kill()
-            process.communicate()
-            for pid in workers:
-                with contextlib.suppress(OSError):
-                    os.kill(pid, signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError):  # the coordinator and any worker it left: nothing trains on
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=60)
 
 
-def _stop_reproduce_with_sigterm(process: subprocess.Popen, tmp_path: Path) -> None:
-    for line in process.stdout:
-        if line.startswith("[start]"):
-            break
-    worker_log = tmp_path / "out" / "tiny" / "logs" / "Pendulum-v1--ilc--s0.log"
-    deadline = time.monotonic() + 120
-    while "from step 0" not in (worker_log.read_text() if worker_log.exists() else "") and time.monotonic() < deadline:
+def _wait_for(condition, what: str, process: subprocess.Popen, output: Path, seconds: float = 300) -> None:
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert process.poll() is None, f"reproduce ended (exit {process.returncode}) before {what}: " \
+                                       f"{output.read_text()[-2000:]}"
+        assert time.monotonic() < deadline, f"no {what} after {seconds:.0f} s"
         time.sleep(0.2)
+
+
+def _stop_reproduce_with_sigterm(process: subprocess.Popen, output: Path, tmp_path: Path) -> None:
+    worker_log = tmp_path / "out" / "tiny" / "logs" / "Pendulum-v1--ilc--s0.log"
+    _wait_for(lambda: "[start]" in output.read_text(), "[start] line", process, output)
+    _wait_for(lambda: worker_log.exists() and "from step 0" in worker_log.read_text(), "training in the worker",
+              process, output)
     workers = _children(process.pid)
-    assert workers and process.poll() is None, "the grid should be training in a worker by now"
+    assert workers, "the grid should be training in a worker by now"
     process.send_signal(signal.SIGTERM)
-    stdout, _ = process.communicate(timeout=120)
-    assert process.returncode == 130 and "run the same command again to continue" in stdout
+    process.wait(timeout=120)
+    assert process.returncode == 130 and "run the same command again to continue" in output.read_text()
     deadline = time.monotonic() + 30
     while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
         time.sleep(0.2)
