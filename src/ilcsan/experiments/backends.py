@@ -4,7 +4,9 @@
                      ``spawn``, each training one job at a time with **one** torch thread (processes
                      whose threads fight over the cores run many times slower). A worker process that
                      dies (e.g. killed for memory) is replaced and its job resumed from its checkpoint,
-                     up to :data:`~ilcsan.experiments.coordinator.CRASH_RETRIES` times.
+                     up to :data:`~ilcsan.experiments.coordinator.CRASH_RETRIES` times. On Linux a worker
+                     ends with its coordinator, however that dies (even ``kill -9``), instead of training
+                     on, orphaned.
 ``ray``              one Ray task per job with ``num_cpus=1``; Ray retries a task whose worker or node
                      dies (``max_retries``), and the retry resumes from the checkpoint. Without
                      ``--address`` a private single-machine Ray is started, listening on the loopback
@@ -18,10 +20,12 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import ctypes
 import logging
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 from collections.abc import Sequence
 from concurrent.futures.process import BrokenProcessPool
@@ -35,9 +39,20 @@ RAY_MAX_RETRIES = 3
 RAY_INSTALL_HINT = 'pip install "ilcsan[ray]"'
 
 
-def _ignore_ctrl_c_between_jobs() -> None:
-    """Local workers ignore Ctrl-C between jobs; the coordinator interrupts running jobs itself."""
+PR_SET_PDEATHSIG = 1
+"""Linux ``prctl`` option: the signal this process gets when the thread that started it ends."""
+
+
+def _prepare_worker(coordinator_pid: int) -> None:
+    """Local workers ignore Ctrl-C between jobs (the coordinator interrupts running jobs itself) and, on Linux,
+    get SIGTERM when the coordinator dies, even by SIGKILL where no handler of its own runs. Checkpoints are
+    written atomically, so a job ended this way resumes from its last one."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if not sys.platform.startswith("linux"):
+        return
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != coordinator_pid:  # the coordinator died before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def _run_job_stopped_by_ctrl_c(job: Job) -> JobOutcome:
@@ -103,7 +118,8 @@ class LocalBackend:
             if self.executor is not None:
                 self.executor.shutdown(wait=True, cancel_futures=True)
             self.executor = concurrent.futures.ProcessPoolExecutor(
-                self.slots, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_ctrl_c_between_jobs)
+                self.slots, mp_context=multiprocessing.get_context("spawn"), initializer=_prepare_worker,
+                initargs=(os.getpid(),))
             self.broken = False
         return self.executor
 
