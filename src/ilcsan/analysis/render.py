@@ -28,18 +28,15 @@ def _decimals(value: float) -> int:
     return 0 if magnitude >= 100 else 1 if magnitude >= 10 else 2
 
 
-def format_stat(mean: float, std: float) -> str:
-    """``3583 ± 86``: integers as in the paper for |mean| ≥ 100, more decimals for small returns."""
+def format_stat(mean: float, std: float | None) -> str:
+    """``3583 ± 86``: integers as in the paper for |mean| ≥ 100, more decimals for small returns; the mean
+    alone where there is no spread (one seed)."""
     places = _decimals(mean)
-    return f"{mean:.{places}f} ± {std:.{places}f}"
+    return f"{mean:.{places}f}" if std is None else f"{mean:.{places}f} ± {std:.{places}f}"
 
 
 def _our_stat(cell: Cell) -> str:
-    if cell.mean is None:
-        return ""
-    if cell.std is None:  # one seed: no spread
-        return f"{cell.mean:.{_decimals(cell.mean)}f}"
-    return format_stat(cell.mean, cell.std)
+    return "" if cell.mean is None else format_stat(cell.mean, cell.std)
 
 
 def _seed_count(cell: Cell) -> str:

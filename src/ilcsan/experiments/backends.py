@@ -50,7 +50,7 @@ def _prepare_worker(coordinator_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if not sys.platform.startswith("linux"):
         return
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     if os.getppid() != coordinator_pid:  # the coordinator died before the request took effect
         os.kill(os.getpid(), signal.SIGTERM)
 
