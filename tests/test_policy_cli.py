@@ -83,6 +83,36 @@ def test_evaluate_command(trained_run, capsys):
     assert code == 0 and "average return" in out and "Pendulum-v1" in out
 
 
+def test_evaluate_plays_a_deploy_bundle_in_the_numpy_runtime(trained_run, tmp_path, capsys):
+    from ilcsan.deploy import DeployedActor
+    from ilcsan.rl.evaluation import evaluate_policy
+
+    for weights in ("float32", "int8"):
+        assert run_cli(capsys, "export", str(trained_run), "--weights", weights,
+                       "--out", str(tmp_path / f"{weights}.npz"))[0] == 0
+    policy_returns, policy_lengths = evaluate_policy(ilcsan.load(trained_run), episodes=2, seed=3)
+    bundle_returns, bundle_lengths = evaluate_policy(DeployedActor.load(tmp_path / "float32.npz"), episodes=2, seed=3)
+    assert bundle_lengths == policy_lengths == [200, 200]
+    np.testing.assert_allclose(bundle_returns, policy_returns, rtol=1e-4)  # actions equal to float32 rounding
+    code, out, _ = run_cli(capsys, "evaluate", str(tmp_path / "int8.npz"), "--episodes", "2", "--seed", "3")
+    assert code == 0 and "Pendulum-v1 · ilc-san · deploy bundle, int8 weights · 2 episodes: average return" in out
+
+
+def test_evaluate_and_report_refuse_what_they_cannot_use_in_one_line(tmp_path, capsys):
+    graph = tmp_path / "actor.nir"
+    graph.write_bytes(b"")
+    assert_one_line_error(*run_cli(capsys, "evaluate", str(graph))[::2], "NIR graph", "deploy bundle (.npz)")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert_one_line_error(*run_cli(capsys, "report", str(empty))[::2], "no runs below", "config.json")
+    assert not any(empty.iterdir()), "no report is written without runs"
+    broken = empty / "run"
+    broken.mkdir()
+    (broken / "config.json").write_text("{")
+    (broken / "metrics.csv").write_text("step\n")
+    assert_one_line_error(*run_cli(capsys, "report", str(empty))[::2], "no usable run", "1 skipped", "config.json")
+
+
 def test_export_npz_bundle_names_and_meta(trained_run, tmp_path, capsys):
     target = tmp_path / "actor.npz"
     code, out, _ = run_cli(capsys, "export", str(trained_run), "--format", "npz", "--out", str(target))

@@ -70,8 +70,10 @@ def _add_train_command(subparsers) -> None:
 def _add_evaluate_command(subparsers) -> None:
     """``ilcsan evaluate RUN``: deterministic episodes with a trained actor."""
     evaluate = subparsers.add_parser("evaluate", help="evaluate a trained actor",
-                                   description="Run deterministic episodes with a trained actor.")
-    evaluate.add_argument("run", help="run directory, policy.pt or checkpoint.pt")
+                                   description="Run deterministic episodes with a trained actor, or with its deploy "
+                                               "bundle in the numpy runtime (what a robot runs; int8 included).")
+    evaluate.add_argument("run", help="run directory, policy.pt, checkpoint.pt, or a deploy bundle (.npz from "
+                                      "`ilcsan export`)")
     evaluate.add_argument("--episodes", type=_positive_int, default=10, help="episodes (paper: 10)")
     evaluate.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed of the first episode")
     evaluate.add_argument("--task", help="evaluate on another task of the same shape (default: the training task)")

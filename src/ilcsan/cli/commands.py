@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import EXPLORATION_PAPERS, PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, RunConfig, TD3Config, actor_config
+from ..errors import UserError
 from .options import build_run_config
 
 
@@ -50,17 +51,30 @@ def _print_results(results: list[dict[str, Any]], out: Path) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from ..deploy.policy import load
     from ..rl.evaluation import evaluate_policy
 
-    policy = load(args.run)
-    returns, lengths = evaluate_policy(policy, episodes=args.episodes, seed=args.seed, task=args.task)
+    actor = _evaluated_actor(Path(args.run))
+    returns, lengths = evaluate_policy(actor, episodes=args.episodes, seed=args.seed, task=args.task)
     import numpy as np
 
-    print(f"{policy.task} · {policy.actor_config.preset} · {args.episodes} episodes: average return "
+    print(f"{args.task or actor.task} · {actor.label} · {args.episodes} episodes: average return "
           f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "
           f"average length {np.mean(lengths):.0f}")
     return 0
+
+
+def _evaluated_actor(path: Path):
+    """What ``ilcsan evaluate`` plays: a deploy bundle (``.npz``) in the numpy runtime, anything else as a Policy."""
+    if path.suffix == ".npz":
+        from ..deploy import DeployedActor
+
+        return DeployedActor.load(path)
+    if path.suffix == ".nir":
+        raise UserError(f"{path} is a NIR graph: run it in a NIR consumer (docs/nir-consumers.md); `ilcsan "
+                        "evaluate` takes a run directory, a policy.pt, a checkpoint.pt or a deploy bundle (.npz)")
+    from ..deploy.policy import load
+
+    return load(path)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

@@ -82,6 +82,8 @@ def cmd_report(args) -> int:
     from ..experiments.grid import report_layout
 
     scan = scan_runs(args.directory)
+    if not scan.runs:
+        raise UserError(_no_runs_message(args.directory, scan.skipped))
     table = report_layout(args.table, scan.runs)
     collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
     try:
@@ -94,6 +96,15 @@ def cmd_report(args) -> int:
     for kind, path in paths.items():
         print(f"  {kind:<8} {path}")
     return 0
+
+
+def _no_runs_message(directory, skipped) -> str:
+    """Why ``ilcsan report`` has nothing to report: no run below ``directory``, or none it could read."""
+    if skipped:
+        first = skipped[0]
+        return (f"no usable run below {directory}: {len(skipped)} skipped, e.g. {first.path}: {first.reason}")
+    return (f"no runs below {directory}: a run is a folder with config.json and metrics.csv, as `ilcsan train "
+            "--out DIR` writes; pass the folder you trained into")
 
 
 def cmd_energy(args) -> int:

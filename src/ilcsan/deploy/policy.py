@@ -87,6 +87,11 @@ class Policy(HostSide):
     def expects(self) -> str:
         return f"{self.task} policy"
 
+    @property
+    def label(self) -> str:
+        """What the policy holds, for messages: its actor preset."""
+        return str(self.actor_config.preset)
+
     def check_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
         """:meth:`HostSide.check_observation`, also for a torch tensor (on any device, with or without grad)."""
         if torch.is_tensor(observation):

@@ -104,16 +104,20 @@ def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = F
 
 def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None):
     """The deterministic policy's returns and lengths over ``episodes`` episodes (Section IV-A), seeded as
-    the module docstring says (``seed`` is the first episode's seed); one ``predict`` call per step for all
-    episodes, as the training loop evaluates."""
+    the module docstring says (``seed`` is the first episode's seed); one call per step for all episodes, as the
+    training loop evaluates. ``policy``: an ``ilcsan.Policy`` (its ``predict``) or a deploy bundle's numpy runtime,
+    ``ilcsan.deploy.DeployedActor`` (its ``act``: the deployed network itself, int8 weights included)."""
     task = task or policy.task
+    if not task:
+        raise UserError("the actor does not name its task; pass --task")
     env = make_env(task)
     shape = env.observation_space.shape
     env.close()
     if shape != (policy.state_dim,):
         raise UserError(f"task {task!r} has observations of shape {shape}; the policy was trained for "
                         f"({policy.state_dim},)")
-    return run_episodes(policy.predict, task, episodes, seed, batched=True)
+    act = policy.predict if hasattr(policy, "predict") else policy.act
+    return run_episodes(act, task, episodes, seed, batched=True)
 
 
 def random_policy_return(task: str, episodes: int = 5, seed: int = 0) -> float:

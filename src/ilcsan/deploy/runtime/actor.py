@@ -95,6 +95,17 @@ class DeployedActor(HostSide):
         return int(self.meta["T"])
 
     @property
+    def task(self) -> str | None:
+        """The task the actor was trained on (meta ``task``; None in a bundle that does not name it)."""
+        task = self.meta.get("task")
+        return str(task) if task else None
+
+    @property
+    def label(self) -> str:
+        """What the bundle holds, for messages: its preset and weight format."""
+        return f"{self.meta.get('preset', 'actor')} · deploy bundle, {self.meta.get('weights', 'float32')} weights"
+
+    @property
     def last_sop(self) -> int:
         """Synaptic operations (accumulates) of the last inference."""
         return sum(self.last_sop_by_layer.values())
