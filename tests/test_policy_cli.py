@@ -98,10 +98,14 @@ def test_evaluate_plays_a_deploy_bundle_in_the_numpy_runtime(trained_run, tmp_pa
     assert code == 0 and "Pendulum-v1 · ilc-san · deploy bundle, int8 weights · 2 episodes: average return" in out
 
 
-def test_evaluate_and_report_refuse_what_they_cannot_use_in_one_line(tmp_path, capsys):
-    graph = tmp_path / "actor.nir"
+def test_commands_refuse_what_they_cannot_use_in_one_line(tmp_path, capsys):
+    graph, bundle = tmp_path / "actor.nir", tmp_path / "actor.npz"
     graph.write_bytes(b"")
-    assert_one_line_error(*run_cli(capsys, "evaluate", str(graph))[::2], "NIR graph", "deploy bundle (.npz)")
+    bundle.write_bytes(b"")
+    for command in ("evaluate", "export", "energy", "lava"):
+        assert_one_line_error(*run_cli(capsys, command, str(graph))[::2], "is a NIR graph", "not a trained policy")
+    for command in ("export", "energy"):
+        assert_one_line_error(*run_cli(capsys, command, str(bundle))[::2], "is a deploy bundle", "run directory")
     empty = tmp_path / "empty"
     empty.mkdir()
     assert_one_line_error(*run_cli(capsys, "report", str(empty))[::2], "no runs below", "config.json")

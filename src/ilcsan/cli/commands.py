@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any
 
 from ..config import EXPLORATION_PAPERS, PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, RunConfig, TD3Config, actor_config
-from ..errors import UserError
 from .options import build_run_config
 
 
@@ -69,9 +68,6 @@ def _evaluated_actor(path: Path):
         from ..deploy import DeployedActor
 
         return DeployedActor.load(path)
-    if path.suffix == ".nir":
-        raise UserError(f"{path} is a NIR graph: run it in a NIR consumer (docs/nir-consumers.md); `ilcsan "
-                        "evaluate` takes a run directory, a policy.pt, a checkpoint.pt or a deploy bundle (.npz)")
     from ..deploy.policy import load
 
     return load(path)

@@ -44,7 +44,15 @@ def resolve_policy_file(path: str | Path) -> Path:
         raise UserError(f"{path} has no policy.pt yet: the run has not finished its first evaluation")
     if not path.exists():
         raise UserError(f"{path} does not exist; pass a run directory, a policy.pt or a checkpoint.pt")
+    if path.suffix in EXPORT_SUFFIXES:
+        raise UserError(f"{path} is {EXPORT_SUFFIXES[path.suffix]}, not a trained policy: pass the run directory, "
+                        "policy.pt or checkpoint.pt it was exported from")
     return path
+
+
+EXPORT_SUFFIXES = {".npz": "a deploy bundle (`ilcsan evaluate` and `ilcsan lava` also take one)",
+                   ".nir": "a NIR graph (run it in a NIR consumer: docs/nir-consumers.md)"}
+"""What ``ilcsan export`` writes, named in the error when one is passed where a policy is needed."""
 
 
 @dataclass
