@@ -329,6 +329,29 @@ def test_untagged_runs_are_placed_in_a_table_by_their_configuration(tmp_path: Pa
     assert beyond.cell("ilc-san", "Hopper").n == 2 and beyond.cell("dan", "Hopper").n == 0
 
 
+def test_runs_of_another_grid_join_a_table_by_their_configuration_also_when_saved_by_an_older_version(
+        tmp_path: Path) -> None:
+    def tagged(seed: int, returns: list[float], table: str, row: str, drop: str | None = None, **kwargs) -> None:
+        run = trained_run(tmp_path, "Hopper", seed, returns, **kwargs)
+        config = json.loads((run / "config.json").read_text()) | {"table": table, "row": row}
+        config["actor"].pop(drop, None)  # a setting that did not exist when the run was saved
+        (run / "config.json").write_text(json.dumps(config))
+
+    tagged(0, [3600], "beyond", "ilc-san")
+    tagged(1, [3400], "beyond", "ilc-san", drop="intra_timing")  # saved before --intra-timing: Algorithm 1's
+    tagged(2, [3000], "fidelity", "authors", intra_timing="authors")  # another actor: in no row of perf
+    tagged(3, [3500], "beyond", "ilc-san+proxy", td3={"target_actor": "proxy"})  # another method
+    tagged(4, [1000], "intra", "self", intra="self")
+    trained_run(tmp_path, "Hopper", 5, [3200])
+    runs = collect_runs(tmp_path)
+    perf = build_table(runs, "perf")
+    assert perf.cell("ilc-san-pop-det", "Hopper").scores == (3600, 3400, 3200)
+    assert sum(perf.cell(row.key, "Hopper").n for row in perf.rows) == 3
+    assert build_table(runs, "beyond").cell("ilc-san", "Hopper").scores == (3600, 3400, 3200)
+    default = {result.name: result for result in report_tables(runs)}  # without --table: by tag, as before
+    assert default["beyond"].cell("ilc-san", "Hopper").scores == (3600, 3400)
+
+
 def test_a_corrupt_run_is_skipped_and_reported(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])
     bad_json = intra_run(tmp_path, "Hopper", "intra", 1, [3600])

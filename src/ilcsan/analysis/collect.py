@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import TD3Config
+from ..config import ActorConfig, TD3Config
 from ..errors import UserError
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
@@ -220,10 +220,19 @@ METHOD_SETTINGS = ("target_actor", "exploration", "preaction_penalty")
 
 
 def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any]) -> str:
-    """Actor settings and training method (:data:`METHOD_SETTINGS`, defaults where ``td3`` lacks them) as one
-    comparable key."""
+    """Actor settings and training method (:data:`METHOD_SETTINGS`) as one comparable key; a setting a saved
+    config lacks (saved before it existed) counts as its default, as it does when the run is loaded."""
     method = {key: td3.get(key, getattr(TD3Config, key)) for key in METHOD_SETTINGS}
-    return json.dumps({"actor": dict(actor), "method": method}, sort_keys=True, default=str)
+    return json.dumps({"actor": _complete_actor(actor), "method": method}, sort_keys=True, default=str)
+
+
+def _complete_actor(actor: Mapping[str, Any]) -> dict[str, Any]:
+    """The saved actor settings with the ones it lacks filled in as :meth:`ActorConfig.from_dict` fills them (as
+    saved where they cannot be read)."""
+    try:
+        return ActorConfig.from_dict(dict(actor)).to_dict()
+    except (UserError, TypeError, ValueError):
+        return dict(actor)
 
 
 def row_identity(run: RunRecord) -> tuple:

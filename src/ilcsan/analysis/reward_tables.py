@@ -143,8 +143,9 @@ def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None)
     """Build one table from runs.
 
     ``table`` a table name of :data:`ilcsan.paper.layouts.TABLES` or a :class:`TableSpec`: its rows and tasks,
-    every cell present (``—`` where there are no runs), runs placed by their ``table``/``row`` tags, and
-    untagged runs by their label (or row slug) matching a row's, else by their configuration. Any other name
+    every cell present (``—`` where there are no runs), runs placed by their ``table``/``row`` tags, untagged
+    runs by their label (or row slug) matching a row's, else by their configuration, and runs of other grids by
+    their configuration. Any other name
     selects the runs tagged with it. None: all runs, rows by label (by tag when tagged), columns the tasks found.
     See the module docstring for the statistics (mean ± std with ``ddof=1``, APR over tasks where both exist).
     """
@@ -178,9 +179,8 @@ def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, match_untagged:
     for run in runs:
         if run.table == spec.name:
             slug = run.row if run.row in groups else None
-        elif run.table is None and match_untagged:
-            slug = (run.row if run.row in groups else by_label.get(run.label)
-                    or by_configuration.get(configuration_key(run.actor, run.td3)))
+        elif match_untagged:
+            slug = _row_of_foreign_run(run, groups, by_label, by_configuration)
             if slug is None:
                 continue
         else:
@@ -193,6 +193,17 @@ def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, match_untagged:
     found = _tasks_in(run for group in (*groups.values(), *extra.values()) for run in group.runs)
     tasks = spec.tasks + tuple(task for task in found if task not in spec.tasks)
     return _table_result(spec.name, spec.caption, tasks, [*groups.values(), *extra.values()], reference)
+
+
+def _row_of_foreign_run(run: RunRecord, groups: Mapping[str, Any], by_label: Mapping[str, str],
+                        by_configuration: Mapping[str, str]) -> str | None:
+    """The row of the asked table that a run not tagged with it joins, if any: an untagged run by its row slug or
+    label, else by its configuration; a run of another grid by its configuration alone (its row and label name that
+    grid's rows), so that a grid's ILC-SAN seeds count in Table perf's ILC-SAN cell."""
+    key = configuration_key(run.actor, run.td3)
+    if run.table is None:
+        return (run.row if run.row in groups else by_label.get(run.label)) or by_configuration.get(key)
+    return by_configuration.get(key)
 
 
 def _build_free(runs: Sequence[RunRecord], name: str | None, caption: str,

@@ -125,7 +125,8 @@ def _add_report_command(subparsers) -> None:
     report.add_argument("--table", default=None,
                         help="table layout to use (default: from the runs' tags); runs not written by `reproduce` "
                              "land in the row with their label, else in the row with their actor settings and "
-                             "training method")
+                             "training method; runs of another table's grid in the row with their settings and "
+                             "method")
     report.add_argument("--out", default=None, help="where to write report.md/.tex/.csv and curves.png")
     report.add_argument("--collapse", default=None, metavar="STEPS",
                         help="comma-separated steps, e.g. 30000,50000: also count each row's seeds still in the "
