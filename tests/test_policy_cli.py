@@ -96,6 +96,10 @@ def test_evaluate_plays_a_deploy_bundle_in_the_numpy_runtime(trained_run, tmp_pa
     np.testing.assert_allclose(bundle_returns, policy_returns, rtol=1e-4)  # actions equal to float32 rounding
     code, out, _ = run_cli(capsys, "evaluate", str(tmp_path / "int8.npz"), "--episodes", "2", "--seed", "3")
     assert code == 0 and "Pendulum-v1 · ilc-san · deploy bundle, int8 weights · 2 episodes: average return" in out
+    int8 = DeployedActor.load(tmp_path / "int8.npz")
+    evaluate_policy(int8, episodes=2, seed=3)
+    assert int8.inferences == 400 and int8.total_sop > 0
+    assert f"synaptic operations per action: {int8.total_sop / 400:.0f} on average over 400 actions" in out
 
 
 def test_commands_refuse_what_they_cannot_use_in_one_line(tmp_path, capsys):

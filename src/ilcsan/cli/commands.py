@@ -59,6 +59,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{args.task or actor.task} · {actor.label} · {args.episodes} episodes: average return "
           f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "
           f"average length {np.mean(lengths):.0f}")
+    if getattr(actor, "inferences", 0):  # the numpy runtime counts every accumulate it performs
+        print(f"synaptic operations per action: {actor.total_sop / actor.inferences:.0f} on average over "
+              f"{actor.inferences} actions (additions only; energy estimates: `ilcsan energy RUN`)")
     return 0
 
 
