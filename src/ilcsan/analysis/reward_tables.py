@@ -145,13 +145,13 @@ def build_table(runs: Sequence[RunRecord], table: str | TableSpec | None = None)
     ``table`` a table name of :data:`ilcsan.paper.layouts.TABLES` or a :class:`TableSpec`: its rows and tasks,
     every cell present (``—`` where there are no runs), runs placed by their ``table``/``row`` tags, untagged
     runs by their label (or row slug) matching a row's, else by their configuration, and runs of other grids by
-    their configuration. Any other name
-    selects the runs tagged with it. None: all runs, rows by label (by tag when tagged), columns the tasks found.
+    their configuration. Any other name selects the runs tagged with it. None: all runs, rows by label (by tag
+    when tagged), columns the tasks found.
     See the module docstring for the statistics (mean ± std with ``ddof=1``, APR over tasks where both exist).
     """
     spec = TABLES.get(table) if isinstance(table, str) else table
     if spec is not None:
-        return _build_from_spec(runs, spec, match_untagged=True, reference=runs)
+        return _build_from_spec(runs, spec, place_others=True, reference=runs)
     if isinstance(table, str):
         return _build_free([run for run in runs if run.table == table], table, table, reference=runs)
     return _build_free(runs, None, "All runs", reference=runs)
@@ -167,7 +167,7 @@ def _rows_by_configuration(rows: Sequence[RowSpec]) -> dict[str, str]:
     return {key: slugs[0] for key, slugs in keys.items() if len(slugs) == 1}
 
 
-def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, match_untagged: bool,
+def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, place_others: bool,
                      reference: Sequence[RunRecord]) -> TableResult:
     builtin = spec.name in TABLES
     groups = {row.slug: _RowDraft(row.slug, row.label, row.published or ((spec.name, row.slug) if builtin else None),
@@ -179,7 +179,7 @@ def _build_from_spec(runs: Sequence[RunRecord], spec: TableSpec, match_untagged:
     for run in runs:
         if run.table == spec.name:
             slug = run.row if run.row in groups else None
-        elif match_untagged:
+        elif place_others:
             slug = _row_of_foreign_run(run, groups, by_label, by_configuration)
             if slug is None:
                 continue
@@ -339,7 +339,7 @@ def report_tables(runs: Sequence[RunRecord], table: str | TableSpec | None = Non
     tags = [name for name in TABLES if any(run.table == name for run in runs)]
     tags += sorted({run.table for run in runs if run.table and run.table not in TABLES})
     results = [
-        _build_from_spec(runs, TABLES[tag], match_untagged=False, reference=runs) if tag in TABLES
+        _build_from_spec(runs, TABLES[tag], place_others=False, reference=runs) if tag in TABLES
         else _build_free([run for run in runs if run.table == tag], tag, tag, reference=runs)
         for tag in tags
     ]

@@ -102,7 +102,7 @@ def _no_runs_message(directory, skipped) -> str:
     """Why ``ilcsan report`` has nothing to report: no run below ``directory``, or none it could read."""
     if skipped:
         first = skipped[0]
-        return (f"no usable run below {directory}: {len(skipped)} skipped, e.g. {first.path}: {first.reason}")
+        return f"no usable run below {directory}: {len(skipped)} skipped, e.g. {first.path}: {first.reason}"
     return (f"no runs below {directory}: a run is a folder with config.json and metrics.csv, as `ilcsan train "
             "--out DIR` writes; pass the folder you trained into")
 
