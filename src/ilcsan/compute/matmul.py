@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import torch
 
+from .programs import OPERATOR_NAMESPACE
+
 MATMUL_PATHS = ("aten", "onednn", "bf16")
 FLOAT32_PATHS = ("aten", "onednn")
 Product = tuple[tuple[int, ...], tuple[int, ...]]
@@ -71,7 +73,7 @@ def onednn_available() -> bool:
     return torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_linear_pointwise")
 
 
-@torch.library.custom_op("ilcsan::onednn_matmul_nt", mutates_args=())
+@torch.library.custom_op(f"{OPERATOR_NAMESPACE}::onednn_matmul_nt", mutates_args=())
 def onednn_matmul_nt(a: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """a @ wᵀ for every ensemble member through oneDNN: (K, R, in) × (K, out, in) → (K, R, out), float32.
 

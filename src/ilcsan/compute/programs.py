@@ -9,8 +9,11 @@ given as arguments (``torch.func.functional_call``).
 
 from __future__ import annotations
 
+import signal
+import threading
 import types
 from collections.abc import Callable, Iterable, Sequence
+from typing import Any
 
 import torch
 from torch import nn
@@ -98,6 +101,7 @@ class DirectProgram:
     def __init__(self, function: Callable, constants: Iterable[torch.Tensor] = ()):
         self.constants = {id(tensor) for tensor in constants}
         self.compiled, self.example_inputs, self.slots, self.fixed, self.output_tuple = None, None, None, None, False
+        self.holds_signals = False  # set when compiled: whether the program calls Python operators
         self.traced = torch.compile(with_own_code(function), fullgraph=True, dynamic=False, backend=self._compile,
                                     options={"guard_filter_fn": torch.compiler.skip_all_guards_unsafe})
 
@@ -111,6 +115,7 @@ class DirectProgram:
         from torch._inductor.compile_fx import compile_fx
 
         self.compiled = compile_fx(graph, example_inputs, config_patches={"cpp_wrapper": True})
+        self.holds_signals = calls_python_operators(graph)
         self.example_inputs = list(example_inputs)
         return self.compiled
 
@@ -125,15 +130,59 @@ class DirectProgram:
         leaves = tensor_leaves(args)
         if self.slots is None:
             with torch._dynamo.config.patch(trace_autograd_ops=True):  # value_and_grads inside the graph
-                result = self.traced(*args)
+                result = signals_held(self.traced, list(args)) if self.holds_signals else self.traced(*args)
             if self.example_inputs is not None:
                 self._bind(leaves, result)
             return result
         inputs = list(self.fixed)
         for slot, position in self.slots:
             inputs[slot] = leaves[position]
-        outputs = self.compiled(*inputs)
+        outputs = signals_held(self.compiled, inputs) if self.holds_signals else self.compiled(*inputs)
         return tuple(outputs) if self.output_tuple else outputs[0]
+
+
+OPERATOR_NAMESPACE = "ilcsan"
+"""The namespace of the operators ilcsan registers (``torch.library.custom_op``), all of them implemented in Python."""
+
+
+def calls_python_operators(graph: torch.fx.GraphModule) -> bool:
+    """Whether a traced graph (its subgraphs included) calls an operator of :data:`OPERATOR_NAMESPACE`."""
+    return any(node.op == "call_function" and getattr(node.target, "namespace", None) == OPERATOR_NAMESPACE
+               for module in graph.modules() if isinstance(module, torch.fx.GraphModule)
+               for node in module.graph.nodes)
+
+
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals a run turns into a KeyboardInterrupt (Ctrl-C; ``kill`` in ``reproduce`` and its workers)."""
+
+
+def signals_held(compiled: Callable, inputs: list) -> Any:
+    """``compiled(*inputs)``, with a :data:`HELD_SIGNALS` signal that arrives meanwhile handed to its Python handler
+    only when the call has returned.
+
+    A compiled program (inductor's C++ wrapper) calls Python-implemented operators, the oneDNN products among them,
+    through the dispatcher's C interface, which reports an exception raised inside one only as a failed call (a
+    RuntimeError): a Ctrl-C landing there would end a run with a traceback instead of a KeyboardInterrupt. So while
+    the program runs, a signal is only noted (Python runs signal handlers in the main thread, whichever thread the
+    signal reached), and raised again once it has returned. Signals without a Python handler (the default action,
+    ignored) are left alone. Only programs that call such operators are run this way (:func:`calls_python_operators`):
+    swapping the handlers costs some microseconds per call. A first call, which compiles for a while, is not held
+    (Ctrl-C stops the compilation at once)."""
+    if threading.current_thread() is not threading.main_thread():  # Python raises KeyboardInterrupt only there
+        return compiled(*inputs)
+    held = [(number, handler) for number in HELD_SIGNALS if callable(handler := signal.getsignal(number))]
+    if not held:
+        return compiled(*inputs)
+    arrived: list[int] = []
+    for number, _ in held:
+        signal.signal(number, lambda received, _frame: arrived.append(received))
+    try:
+        return compiled(*inputs)
+    finally:
+        for number, handler in held:
+            signal.signal(number, handler)
+        for number in arrived:
+            signal.raise_signal(number)  # now, outside the program, to the handler it was meant for
 
 
 class CompiledPerShape:
