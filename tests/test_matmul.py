@@ -138,6 +138,43 @@ def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
                                 f"{recorded['products']} product shapes")
 
 
+def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_asked_for(tmp_path, monkeypatch,
+                                                                                       restore_path):
+    """The float32 paths round differently: a run measured aten faster at its start and resumed where oneDNN
+    measures faster still continues on aten (its curve then equals an uninterrupted run's); asked for bf16 on
+    resume, it measures anew."""
+    if not onednn_available():
+        pytest.skip("this torch has no oneDNN")
+    import ilcsan.rl.training as training
+    from ilcsan.rl.matmul_choice import choose_matmul_path
+
+    def measuring(fastest: str):
+        def choose(config, state_dim, action_dim):
+            if config.matmul == "bf16":
+                return choose_matmul_path(config, state_dim, action_dim)
+            return MatmulPath(fastest), {"path": fastest, "compiled": False, "gflops": {"aten": 1.0, "onednn": 1.0}}
+        return choose
+
+    config = RunConfig(task="Pendulum-v1", steps=20, eval_every=10, eval_episodes=1, threads=1,
+                       actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=5))
+    monkeypatch.setattr(training, "choose_matmul_path", measuring("aten"))
+    training.train(RunConfig(**{**config.__dict__, "steps": 10}), tmp_path / "run", progress=False, log=print)
+    monkeypatch.setattr(training, "choose_matmul_path", measuring("onednn"))
+    lines: list[str] = []
+    trainer = Trainer(config, tmp_path / "run", resume=True, progress=False, log=lines.append)
+    try:
+        assert trainer.matmul["path"] == "aten"
+        assert any(line.startswith("matmul: aten (kept from the run's start") for line in lines)
+    finally:
+        trainer.close()
+    bf16 = RunConfig(**{**config.__dict__, "matmul": "bf16"})
+    trainer = Trainer(bf16, tmp_path / "run", resume=True, progress=False, log=lines.append)
+    try:
+        assert trainer.matmul["path"] == "bf16" and "kept" not in trainer.matmul
+    finally:
+        trainer.close()
+
+
 def test_a_bf16_run_rounds_only_the_products_it_measured_faster_in_bfloat16(restore_path):
     assert gaining_products({((1, 5, 4), (1, 3, 4)): (1.0, 0.9), ((1, 5, 3), (1, 4, 3)): (1.0, 0.91),
                              ((1, 3, 5), (1, 4, 5)): (1.0, 2.0)}) == {((1, 5, 4), (1, 3, 4))}

@@ -1,18 +1,22 @@
-"""The matmul path of a run, chosen by measuring the run's own products at its start."""
+"""The matmul path of a run, chosen by measuring the run's own products at its start, and kept when it resumes."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from itertools import pairwise
+from typing import Any
 
 import torch
 
 from ..compute.matmul import (
+    MATMUL_PATHS,
     MatmulPath,
     Product,
     fastest_float32_path,
     gaining_products,
     layer_products,
     measure_paths,
+    onednn_available,
     product_times,
 )
 from ..config import PROXY_HIDDEN, SPIKING_ENCODERS, RunConfig
@@ -67,8 +71,30 @@ def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> tu
                               "gflops": {name: round(value, 1) for name, value in speeds.items()}}
 
 
+def recorded_matmul_path(choice: Any, setting: str) -> tuple[MatmulPath, dict] | None:
+    """The path a run chose at its start (``matmul_path`` in its config.json), to resume it on: the two float32 paths
+    round differently, so a resumed run computes as its first part did only on the same path — and only then equals
+    an uninterrupted run bit for bit. None when the choice is absent (a run of an older version), unreadable, not
+    available here (oneDNN in another build of torch) or not of the ``--matmul`` now asked for (``setting``: float32
+    or bf16): the path is then measured again."""
+    if not isinstance(choice, Mapping) or choice.get("path") not in MATMUL_PATHS:
+        return None
+    if (choice["path"] == "bf16") != (setting == "bf16"):
+        return None
+    if choice["path"] == "onednn" and not onednn_available():
+        return None
+    try:
+        products = choice.get("bf16_products") if choice["path"] == "bf16" else None
+        path = MatmulPath(choice["path"], products)
+    except (TypeError, ValueError):
+        return None
+    return path, dict(choice, kept=True)
+
+
 def describe_matmul_choice(choice: dict) -> str:
     """One line for the start of a run: the path and, when measured, each path's speed on the run's products."""
+    if choice.get("kept"):
+        return f"matmul: {choice['path']} (kept from the run's start, so that it continues as it began)"
     if "bf16_products" in choice:
         chosen, total = len(choice["bf16_products"]), choice["products"]
         gain = f", {choice['bf16_speedup']:.1f}x faster on those" if chosen else ""

@@ -30,11 +30,11 @@ from ..compute.process import ProcessSettings, apply_to_process
 from ..config import RunConfig
 from ..errors import TrainingDiverged
 from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
-from ..runs.directory import RunDirectory, run_directories
+from ..runs.directory import RunDirectory, RunFileError, run_directories
 from ..snn.diagnostics import EvaluationActions
 from .callbacks import Callbacks, ProgressReport, TensorBoardLog
 from .evaluation import replay_diagnostics, run_lockstep, training_evaluation_seed
-from .matmul_choice import choose_matmul_path, describe_matmul_choice
+from .matmul_choice import choose_matmul_path, describe_matmul_choice, recorded_matmul_path
 from .normalizer import RunningNormalizer
 from .ram import check_memory
 from .replay import ReplayBuffer
@@ -69,7 +69,8 @@ class Trainer:
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
-            matmul, self.matmul = choose_matmul_path(config, state_dim, action_dim)
+            kept = self._recorded_matmul_path() if resumable else None
+            matmul, self.matmul = kept or choose_matmul_path(config, state_dim, action_dim)
             log(describe_matmul_choice(self.matmul))
             self.agent = TD3Agent(config.actor, config.td3, state_dim, action_dim, self.environments.action_scale,
                                   self.environments.action_offset, config.seeds, config.device,
@@ -91,6 +92,14 @@ class Trainer:
         except BaseException:
             self.close()
             raise
+
+    def _recorded_matmul_path(self):
+        """The matmul path the run being resumed started on (:func:`recorded_matmul_path`), if it can be kept."""
+        try:
+            recorded = self.directories[0].config_object().get("matmul_path")
+        except RunFileError:
+            return None
+        return recorded_matmul_path(recorded, self.config.matmul)
 
     def _start(self) -> None:
         """Step 0 of a new run: the first episodes and each seed's config.json."""
