@@ -541,7 +541,11 @@ def _stop_reproduce(process: subprocess.Popen, stop: signal.Signals, output: Pat
     workers = _children(process.pid)
     assert workers, "the grid should be training in a worker by now"
     process.send_signal(stop)
-    process.wait(timeout=120)
+    try:  # generous: with 4 busy processes on 2 cores, 2 runs waited over 120 s here (cause not found)
+        process.wait(timeout=300)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"reproduce still running 300 s after {stop.name}; its output: {output.read_text()[-1500:]}; "
+                    f"the worker's log: {worker_log.read_text()[-1500:]}")
     if stop == signal.SIGTERM:
         assert process.returncode == 130 and "run the same command again to continue" in output.read_text()
     else:
