@@ -3,7 +3,7 @@
 A compiled program (inductor's C++ wrapper) calls Python-implemented operators, such as the oneDNN products
 (:func:`ilcsan.compute.matmul.onednn_matmul_nt`), through the dispatcher's C interface. A KeyboardInterrupt raised
 inside such an operator reaches the caller only as "API call failed", a RuntimeError: training would end with a
-traceback instead of its "interrupted; continue with --resume" line, and a grid's worker would report a failed job.
+traceback instead of its "interrupted; continue with --resume" line (seen when stopping a run on that path).
 """
 
 from __future__ import annotations

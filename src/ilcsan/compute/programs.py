@@ -167,7 +167,7 @@ def signals_held(compiled: Callable, inputs: list) -> Any:
     signal reached), and raised again once it has returned. Signals without a Python handler (the default action,
     ignored) are left alone. Only programs that call such operators are run this way (:func:`calls_python_operators`):
     swapping the handlers costs some microseconds per call. A first call, which compiles for a while, is not held
-    (Ctrl-C stops the compilation at once)."""
+    (Ctrl-C reaches the compilation as it did before)."""
     if threading.current_thread() is not threading.main_thread():  # Python raises KeyboardInterrupt only there
         return compiled(*inputs)
     held = [(number, handler) for number in HELD_SIGNALS if callable(handler := signal.getsignal(number))]
