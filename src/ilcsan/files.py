@@ -31,7 +31,7 @@ os.umask(_UMASK)
 
 
 @contextlib.contextmanager
-def _replacing(path: Path):
+def replacing(path: Path):
     """Yield a temporary file beside ``path`` (a new file's permissions); when the block succeeds, flush it to
     disk and rename it over ``path``; when it fails, remove it. The one atomic write of the package."""
     path = Path(path)
@@ -58,13 +58,13 @@ FAULT_DELAY_VARIABLE = "ILCSAN_FAULT_DELAY_WRITE"
 
 def atomic_write_file(path: Path, write) -> None:
     """Atomically create ``path`` with ``write(temporary_path)``, for libraries that write files themselves."""
-    with _replacing(path) as temporary:
+    with replacing(path) as temporary:
         write(temporary)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     delay = float(os.environ.get(FAULT_DELAY_VARIABLE) or 0)
-    with _replacing(path) as temporary, open(temporary, "wb") as stream:
+    with replacing(path) as temporary, open(temporary, "wb") as stream:
         if delay > 0:  # fault injection: a half-written temporary file exists while we sleep
             stream.write(data[: len(data) // 2])
             stream.flush()

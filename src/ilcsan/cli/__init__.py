@@ -77,6 +77,8 @@ def _add_evaluate_command(subparsers) -> None:
     evaluate.add_argument("--episodes", type=_positive_int, default=10, help="episodes (paper: 10)")
     evaluate.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed of the first episode")
     evaluate.add_argument("--task", help="evaluate on another task of the same shape (default: the training task)")
+    evaluate.add_argument("--video", metavar="DIR", help="also write each episode to DIR/<task>-seed<S>.mp4 "
+                          "(rendered off-screen; needs imageio-ffmpeg, which scripts/setup installs)")
     evaluate.set_defaults(handler=commands.cmd_evaluate)
 
 

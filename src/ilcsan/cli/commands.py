@@ -50,18 +50,26 @@ def _print_results(results: list[dict[str, Any]], out: Path) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from ..rl.evaluation import evaluate_policy
-
-    actor = _evaluated_actor(Path(args.run))
-    returns, lengths = evaluate_policy(actor, episodes=args.episodes, seed=args.seed, task=args.task)
     import numpy as np
 
-    print(f"{args.task or actor.task} · {actor.label} · {args.episodes} episodes: average return "
+    from ..rl.evaluation import episode_seed, evaluate_policy
+
+    actor = _evaluated_actor(Path(args.run))
+    task = args.task or actor.task
+    video = Path(args.video) if args.video else None
+    returns, lengths = evaluate_policy(actor, episodes=args.episodes, seed=args.seed, task=task, video=video)
+    episodes = f"{args.episodes} episode" + ("s" if args.episodes != 1 else "")
+    print(f"{task} · {actor.label} · {episodes}: average return "
           f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "
           f"average length {np.mean(lengths):.0f}")
     if getattr(actor, "inferences", 0):  # the numpy runtime counts every accumulate it performs
         print(f"synaptic operations per action: {actor.total_sop / actor.inferences:.0f} on average over "
               f"{actor.inferences} actions (additions only; energy estimates: `ilcsan energy RUN`)")
+    if video is not None:
+        from ..rl.video import video_path
+
+        first, last = (video_path(video, task, episode_seed(args.seed, e)) for e in (0, args.episodes - 1))
+        print(f"video of each episode: {first}" + (f" … {last.name}" if last != first else ""))
     return 0
 
 

@@ -14,6 +14,7 @@ evaluate``. Episode ``e`` of an evaluation whose first episode has seed ``S`` is
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -83,12 +84,20 @@ def replay_diagnostics(agent, replay, normalizer, seeds: Sequence[int], step: in
     return diagnose_actor(agent.actor, torch.as_tensor(states, device=agent.device))
 
 
-def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False
-                 ) -> tuple[list[float], list[int]]:
+def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False,
+                 video: Path | None = None) -> tuple[list[float], list[int]]:
     """Run ``episodes`` episodes of ``task`` with ``act(observation) -> action``, episode ``e`` seeded
     ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths.
-    ``batched``: ``act`` maps all episodes' observations (E, N) to their actions (E, M) in one call."""
-    envs = make_envs(task, episodes)
+    ``batched``: ``act`` maps all episodes' observations (E, N) to their actions (E, M) in one call.
+    ``video``: a folder that receives one MP4 per episode (:mod:`ilcsan.rl.video`); the episodes are the same."""
+    if video is None:
+        envs = make_envs(task, episodes)
+    else:
+        from .video import EpisodeVideo, ffmpeg, prepare_rendering
+
+        ffmpeg()  # a missing encoder is reported before any episode runs
+        prepare_rendering()
+        envs = [EpisodeVideo(env, video, task) for env in make_envs(task, episodes, render_mode="rgb_array")]
     try:
         def act_all(observations: np.ndarray) -> np.ndarray:
             if batched:
@@ -102,11 +111,12 @@ def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = F
     return returns[0], lengths[0]
 
 
-def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None):
+def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None, video: Path | None = None):
     """The deterministic policy's returns and lengths over ``episodes`` episodes (Section IV-A), seeded as
     the module docstring says (``seed`` is the first episode's seed); one call per step for all episodes, as the
     training loop evaluates. ``policy``: an ``ilcsan.Policy`` (its ``predict``) or a deploy bundle's numpy runtime,
-    ``ilcsan.deploy.DeployedActor`` (its ``act``: the deployed network itself, int8 weights included)."""
+    ``ilcsan.deploy.DeployedActor`` (its ``act``: the deployed network itself, int8 weights included).
+    ``video``: also write each episode to ``video/<task>-seed<S>.mp4`` (:mod:`ilcsan.rl.video`)."""
     task = task or policy.task
     if not task:
         raise UserError("the actor does not name its task; pass --task")
@@ -117,7 +127,7 @@ def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None 
         raise UserError(f"task {task!r} has observations of shape {shape}; the policy was trained for "
                         f"({policy.state_dim},)")
     act = policy.predict if hasattr(policy, "predict") else policy.act
-    return run_episodes(act, task, episodes, seed, batched=True)
+    return run_episodes(act, task, episodes, seed, batched=True, video=video)
 
 
 def random_policy_return(task: str, episodes: int = 5, seed: int = 0) -> float:

@@ -164,13 +164,15 @@ def _build(name: str, gym_id: str, kwargs: dict[str, Any], seed: int | None):
     return env
 
 
-def make_env(name: str, seed: int | None = None):
+def make_env(name: str, seed: int | None = None, render_mode: str | None = None):
     """A Gymnasium environment for ``name`` with a Box action space and a flat Box observation, reset once
-    (seeded if ``seed`` is given)."""
+    (seeded if ``seed`` is given); ``render_mode`` is Gymnasium's (e.g. ``"rgb_array"`` for videos)."""
     import gymnasium as gym
     from gymnasium import logger
 
     gym_id, kwargs = resolve_task(name)
+    if render_mode is not None:
+        kwargs = {**kwargs, "render_mode": render_mode}
     logger.min_level = logger.ERROR if hasattr(logger, "ERROR") else 40
     env = _build(name, gym_id, kwargs, seed)
     if not isinstance(env.action_space, gym.spaces.Box):
@@ -187,13 +189,13 @@ def make_env(name: str, seed: int | None = None):
     return env
 
 
-def make_envs(name: str, count: int) -> list:
+def make_envs(name: str, count: int, render_mode: str | None = None) -> list:
     """``count`` environments of ``name`` (see :func:`make_env`); if one cannot be built, those already built
     are closed before the error propagates."""
     envs: list = []
     try:
         for _ in range(count):
-            envs.append(make_env(name))
+            envs.append(make_env(name, render_mode=render_mode))
     except BaseException:
         for env in envs:
             with contextlib.suppress(Exception):
