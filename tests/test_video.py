@@ -1,8 +1,10 @@
-"""Episode videos (``ilcsan evaluate --video``): every frame written, the episodes unchanged, nothing half-written."""
+"""Watching an evaluation (``ilcsan evaluate``): episode videos with every frame, the episodes unchanged, nothing
+half-written, and progress on long evaluations."""
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import numpy as np
@@ -98,3 +100,13 @@ def test_the_command_names_the_videos_and_says_how_to_get_the_encoder(trained_ru
     code, out, err = run_cli(capsys, "evaluate", str(trained_run), "--video", str(tmp_path / "w"))
     assert_one_line_error(code, err, "imageio-ffmpeg", "pip install 'ilcsan[video]'")
     assert out == "" and not (tmp_path / "w").exists()
+
+
+def test_a_long_evaluation_shows_its_progress_over_the_episodes_steps(trained_run, capsys):
+    policy = ilcsan.load(trained_run)
+    returns = evaluate_policy(policy, episodes=2, seed=3, progress=True)
+    err = capsys.readouterr().err
+    counts = [int(count) for count in re.findall(r"Pendulum-v1: 2 episodes:.*?(\d+)/400 ", err)]
+    assert counts[0] == 0 and max(counts) > 0  # over 2 episodes × Pendulum's 200-step limit, counting
+    assert returns == evaluate_policy(policy, episodes=2, seed=3)
+    assert capsys.readouterr().err == ""  # off unless asked for (the command asks when stderr is a terminal)

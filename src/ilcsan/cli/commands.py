@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +58,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     actor = _evaluated_actor(Path(args.run))
     task = args.task or actor.task
     video = Path(args.video) if args.video else None
-    returns, lengths = evaluate_policy(actor, episodes=args.episodes, seed=args.seed, task=task, video=video)
+    returns, lengths = evaluate_policy(actor, episodes=args.episodes, seed=args.seed, task=task, video=video,
+                                       progress=sys.stderr.isatty())
     episodes = f"{args.episodes} episode" + ("s" if args.episodes != 1 else "")
     print(f"{task} · {actor.label} · {episodes}: average return "
           f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "

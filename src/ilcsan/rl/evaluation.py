@@ -13,6 +13,7 @@ evaluate``. Episode ``e`` of an evaluation whose first episode has seed ``S`` is
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -85,11 +86,13 @@ def replay_diagnostics(agent, replay, normalizer, seeds: Sequence[int], step: in
 
 
 def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False,
-                 video: Path | None = None) -> tuple[list[float], list[int]]:
+                 video: Path | None = None, progress: bool = False) -> tuple[list[float], list[int]]:
     """Run ``episodes`` episodes of ``task`` with ``act(observation) -> action``, episode ``e`` seeded
     ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths.
     ``batched``: ``act`` maps all episodes' observations (E, N) to their actions (E, M) in one call.
-    ``video``: a folder that receives one MP4 per episode (:mod:`ilcsan.rl.video`); the episodes are the same."""
+    ``video``: a folder that receives one MP4 per episode (:mod:`ilcsan.rl.video`); the episodes are the same.
+    ``progress``: a bar on stderr over the episodes' steps (each episode counts its time limit; an episode that ends
+    sooner completes its share at the end)."""
     if video is None:
         envs = make_envs(task, episodes)
     else:
@@ -104,19 +107,38 @@ def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = F
                 return act(observations[0].copy())[None]
             return np.stack([act(observation.copy()) for observation in observations[0]])[None]
 
-        returns, lengths = run_lockstep([envs], act_all, [seed])
+        with _step_bar(task, envs, enabled=progress) as count_steps:
+            returns, lengths = run_lockstep([envs], act_all, [seed], observe=count_steps)
     finally:
         for env in envs:
             env.close()
     return returns[0], lengths[0]
 
 
-def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None, video: Path | None = None):
+@contextlib.contextmanager
+def _step_bar(task: str, envs: Sequence, enabled: bool):
+    """A tqdm bar over the steps of ``envs``' episodes; yields the ``observe`` hook of :func:`run_lockstep`."""
+    from tqdm import tqdm
+
+    limit = getattr(envs[0].spec, "max_episode_steps", None)
+    bar = tqdm(total=limit and limit * len(envs), disable=not enabled, unit="step", dynamic_ncols=True, leave=False,
+               desc=f"{task}: {len(envs)} episode" + ("s" if len(envs) != 1 else ""))
+    try:
+        yield lambda _actions, running: bar.update(int(running.sum()))
+        if bar.total:
+            bar.update(bar.total - bar.n)
+    finally:
+        bar.close()
+
+
+def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None, video: Path | None = None,
+                    progress: bool = False):
     """The deterministic policy's returns and lengths over ``episodes`` episodes (Section IV-A), seeded as
     the module docstring says (``seed`` is the first episode's seed); one call per step for all episodes, as the
     training loop evaluates. ``policy``: an ``ilcsan.Policy`` (its ``predict``) or a deploy bundle's numpy runtime,
     ``ilcsan.deploy.DeployedActor`` (its ``act``: the deployed network itself, int8 weights included).
-    ``video``: also write each episode to ``video/<task>-seed<S>.mp4`` (:mod:`ilcsan.rl.video`)."""
+    ``video``: also write each episode to ``video/<task>-seed<S>.mp4`` (:mod:`ilcsan.rl.video`); ``progress``: a
+    bar over the steps on stderr."""
     task = task or policy.task
     if not task:
         raise UserError("the actor does not name its task; pass --task")
@@ -127,7 +149,7 @@ def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None 
         raise UserError(f"task {task!r} has observations of shape {shape}; the policy was trained for "
                         f"({policy.state_dim},)")
     act = policy.predict if hasattr(policy, "predict") else policy.act
-    return run_episodes(act, task, episodes, seed, batched=True, video=video)
+    return run_episodes(act, task, episodes, seed, batched=True, video=video, progress=progress)
 
 
 def random_policy_return(task: str, episodes: int = 5, seed: int = 0) -> float:
