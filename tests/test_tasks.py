@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -146,3 +151,39 @@ class Closable:
 
     def close(self):
         self.closed = True
+
+
+def test_a_task_of_ones_own_is_module_colon_id_and_every_process_imports_it(tmp_path, capsys, monkeypatch):
+    env = make_env("own_tasks:HeavyPendulum-v0")
+    assert env.unwrapped.g == 12.0  # the user's registration, not Gymnasium's Pendulum
+    env.close()
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--task", "own_tasks:HeavyPendulum-v0", "--steps", "300", "--eval-every", "150",
+                 "--eval-episodes", "1", "--start-steps", "150", "--hidden-width", "16", "--no-progress"]) == 0
+    run = tmp_path / "runs" / "HeavyPendulum-v0-ilc-san-s0"  # the id names the folder, not the module
+    assert json.loads((run / "config.json").read_text())["task"] == "own_tasks:HeavyPendulum-v0"
+    capsys.readouterr()
+
+    def evaluate_in_a_new_process(pythonpath: str):
+        environment = {**os.environ, "PYTHONPATH": pythonpath}
+        return subprocess.run([sys.executable, "-m", "ilcsan.cli", "evaluate", str(run), "--episodes", "1"],
+                              capture_output=True, text=True, env=environment, timeout=600)
+
+    found = evaluate_in_a_new_process(str(Path(__file__).parent))
+    assert found.returncode == 0 and "own_tasks:HeavyPendulum-v0 · ilc-san · 1 episode:" in found.stdout
+    lost = evaluate_in_a_new_process("")
+    assert lost.returncode == 2 and lost.stderr.strip().splitlines() == [
+        "ilcsan: error: task 'own_tasks:HeavyPendulum-v0': cannot import module 'own_tasks' (No module named "
+        "'own_tasks'); install it, or add its folder to PYTHONPATH"]
+
+
+@pytest.mark.parametrize(("task", "fragment"), [
+    ("no_such_module:Arm-v0", "cannot import module 'no_such_module' (No module named 'no_such_module')"),
+    ("own_tasks:Arm-v0", "importing 'own_tasks' registered no task of that id"),
+    (":Arm-v0", "names no module before ':'"),
+    ("Arm-v0", "or a task of your own as module:id"),
+])
+def test_a_task_of_ones_own_that_cannot_be_found_is_one_line(task, fragment, capsys):
+    code = main(["train", "--task", task, "--steps", "100"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and fragment in err

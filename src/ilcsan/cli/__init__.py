@@ -56,7 +56,8 @@ def _add_train_command(subparsers) -> None:
     train = subparsers.add_parser("train", help="train an actor with TD3",
                                 description="Train an actor with TD3 and a deep twin critic.")
     train.add_argument("--task", default=RunConfig.task,
-                       help=f"paper short name (see `ilcsan tasks`) or a Gymnasium id (default: {RunConfig.task})")
+                       help=f"paper short name (see `ilcsan tasks`), a Gymnasium id, or your own task as "
+                            f"module:id (its module is imported first; default: {RunConfig.task})")
     _add_actor_switches(train)
     _add_run_options(train)
     train.add_argument("--out", help="run directory (default runs/<task>-<actor>-s<seeds>)")
@@ -103,7 +104,7 @@ def _add_reproduce_command(subparsers) -> None:
     reproduce.add_argument("--seeds", default=None, help=f"seeds (default: the grid's; paper: 0-{SEEDS - 1})")
     add_setting(reproduce, RunConfig, "steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--tasks", default=None, help="comma-separated tasks: the table's, or any other "
-                           "(a paper task or a Gymnasium id with Box actions; no paper numbers)")
+                           "(a paper task, a Gymnasium id or module:id, with Box actions; no paper numbers)")
     reproduce.add_argument("--rows", default=None, help="comma-separated subset of the table's rows")
     for name in ("eval_every", "eval_episodes"):
         add_setting(reproduce, RunConfig, name, default=None, default_text=_GRIDS)

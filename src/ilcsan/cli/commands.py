@@ -21,10 +21,12 @@ def _print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
 
 # ----------------------------------------------------------------------------------- commands
 def cmd_train(args: argparse.Namespace) -> int:
+    from ..rl.tasks import task_file_name
     from ..rl.training import train
 
     config = build_run_config(args)
-    out = Path(args.out or f"runs/{config.task}-{config.actor.preset}-s{args.seeds.replace(',', '_')}")
+    seeds = args.seeds.replace(",", "_")
+    out = Path(args.out or f"runs/{task_file_name(config.task)}-{config.actor.preset}-s{seeds}")
     results = train(config, out, resume=args.resume, progress=None if not args.no_progress else False)
     _print_results(results, out)
     return 0

@@ -70,19 +70,50 @@ _LOWER_NAMES = {name.lower(): name for name in TASK_SPECS}
 
 
 def resolve_task(name: str) -> tuple[str, dict[str, Any]]:
-    """Short name (case-insensitive) or Gymnasium id → (gym id, keyword arguments)."""
+    """Short name (case-insensitive), Gymnasium id, or ``module:id`` → (gym id, keyword arguments).
+
+    ``module:id`` is Gymnasium's own form for a task of your own: the module (e.g. ``my_robot.envs``) is imported
+    first, so that its ``gymnasium.register(id=..., entry_point=...)`` calls run, and ``id`` is then made. Every
+    process that builds the task imports the module again (grid workers, Ray nodes), so it must be importable there.
+    """
     short = _LOWER_NAMES.get(name.lower())
     if short is not None:
         spec = TASK_SPECS[short]
         return spec.gym_id, dict(spec.kwargs)
     import gymnasium as gym
 
-    if name not in gym.registry:
+    module, separator, gym_id = name.rpartition(":")
+    if separator:
+        _import_task_module(module, name)
+    if gym_id not in gym.registry:
+        if separator:
+            raise UserError(f"unknown task {gym_id!r}: importing {module!r} registered no task of that id; check "
+                            "the id given to gymnasium.register in that module")
         raise UserError(
-            f"unknown task {name!r}: use a paper task ({', '.join(TASK_SPECS)}) or a registered "
-            "Gymnasium id such as 'Pendulum-v1' (see `ilcsan tasks`)"
+            f"unknown task {name!r}: use a paper task ({', '.join(TASK_SPECS)}), a registered Gymnasium id such as "
+            "'Pendulum-v1' (see `ilcsan tasks`), or a task of your own as module:id (e.g. my_robot.envs:Arm-v0)"
         )
-    return name, {}
+    return gym_id, {}
+
+
+def task_file_name(name: str) -> str:
+    """A task's name as part of a file or folder name: the id of a ``module:id`` task, any character other than
+    letters, digits, ``.``, ``_`` and ``-`` replaced by ``-``."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", name.rpartition(":")[2])
+
+
+def _import_task_module(module: str, name: str) -> None:
+    """Import the module named by a ``module:id`` task; any failure is one UserError line."""
+    import importlib
+
+    if not module:
+        raise UserError(f"task {name!r} names no module before ':'; write it as module:id, e.g. my_robot.envs:Arm-v0")
+    try:
+        importlib.import_module(module)
+    except Exception as error:  # noqa: BLE001 - the module is the user's code: any failure is reported in one line
+        cause = _one_line(str(error)) or type(error).__name__
+        raise UserError(f"task {name!r}: cannot import module {module!r} ({cause}); install it, or add its folder "
+                        "to PYTHONPATH") from None
 
 
 MUJOCO_WARNINGS: list[str] = []

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 from collections.abc import Generator
 from pathlib import Path
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..files import replacing
+from .tasks import task_file_name
 
 INSTALL_HINT = "pip install 'ilcsan[video]' (scripts/setup installs it)"
 """How to get the encoder when it is missing."""
@@ -60,8 +60,8 @@ def ffmpeg():
 
 
 def video_path(folder: Path, task: str, seed: int) -> Path:
-    """Where the episode of ``task`` reset with ``seed`` is written (characters unsafe in file names become -)."""
-    return Path(folder) / f"{re.sub(r'[^A-Za-z0-9._-]+', '-', task)}-seed{seed}.mp4"
+    """Where the episode of ``task`` reset with ``seed`` is written."""
+    return Path(folder) / f"{task_file_name(task)}-seed{seed}.mp4"
 
 
 SHADOW_MAP_SIZE = 1024
