@@ -170,10 +170,17 @@ def _fix_for(name: str, gym_id: str, error: Exception) -> str:
         return f"install the missing package ({error.name}) into this environment"
     if isinstance(error, TypeError):
         return "check the task's keyword arguments"
+    if "MUJOCO_GL" in str(error):
+        return RENDERING_FIX
     newer = _newest_other_version(gym_id)
     if newer is not None:
         return f"use another version of the task, e.g. --task {newer}"
     return "install what it asks for, or pick another task (see `ilcsan tasks`)"
+
+
+RENDERING_FIX = ("set MUJOCO_GL=egl (needs libEGL) or MUJOCO_GL=osmesa (needs libOSMesa), or run where a display "
+                 "exists")
+"""What to do when a task cannot render its frames (videos)."""
 
 
 def _build(name: str, gym_id: str, kwargs: dict[str, Any], seed: int | None):
@@ -191,6 +198,8 @@ def _build(name: str, gym_id: str, kwargs: dict[str, Any], seed: int | None):
                 env.close()
         cause = _one_line(str(error)) or type(error).__name__
         shown = name if name == gym_id else f"{name} ({gym_id})"
+        if "render_mode" in kwargs:
+            raise UserError(f"task {shown!r} cannot be built for rendering here: {cause}; {RENDERING_FIX}") from None
         raise UserError(f"task {shown!r} cannot be built here: {cause}; {_fix_for(name, gym_id, error)}") from None
     return env
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..files import replacing
-from .tasks import task_file_name
+from .tasks import RENDERING_FIX, task_file_name
 
 INSTALL_HINT = "pip install 'ilcsan[video]' (scripts/setup installs it)"
 """How to get the encoder when it is missing."""
@@ -153,9 +153,8 @@ class EpisodeVideo(gymnasium.Wrapper):
             frame = self.env.render()
         except Exception as error:  # noqa: BLE001 - every rendering failure is reported in one line
             cause = " ".join(str(error).split()) or type(error).__name__
-            raise UserError(f"task {self.task!r} cannot be rendered on this machine: {cause}; set MUJOCO_GL=egl "
-                            "(needs libEGL) or MUJOCO_GL=osmesa (needs libOSMesa), or run where a display "
-                            "exists") from None
+            raise UserError(f"task {self.task!r} cannot be rendered on this machine: {cause}; {RENDERING_FIX}"
+                            ) from None
         if not isinstance(frame, np.ndarray) or frame.ndim != 3:
             raise UserError(f"task {self.task!r} renders no RGB frames, so it cannot be recorded")
         return frame
