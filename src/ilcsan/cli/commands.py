@@ -148,7 +148,8 @@ def cmd_tasks(args: argparse.Namespace) -> int:
         row["kwargs"] = ",".join(f"{k}={v}" for k, v in row["kwargs"].items()) or "-"
     _print_table(rows, ["task", "gym_id", "N", "M", "paper_id", "kwargs", "note"])
     print(VERSION_NOTE)
-    print("Any other registered Gymnasium id with a Box action space works too, e.g. Pendulum-v1.")
+    print("Any other registered Gymnasium id with a Box action space works too, e.g. Pendulum-v1, and so does a task "
+          "of your own as module:id (the module that registers it is imported first), e.g. my_robot.envs:Arm-v0.")
     return 0
 
 
