@@ -28,7 +28,8 @@ HEADER = "step,eval_return_mean,eval_return_std,eval_length_mean,wall_seconds,st
 
 def make_run(root: Path, task: str, seed: int, label: str, returns: list[float], *,
              table: str | None = None, row: str | None = None, preset: str = "ilc-san",
-             result: bool = True, finished: bool = True, every: int = 10_000, subdir: str | None = None) -> Path:
+             result: bool = True, finished: bool = True, every: int = 10_000, subdir: str | None = None,
+             wall_seconds: float | None = None) -> Path:
     """Write config.json, metrics.csv and (optionally) result.json the way the trainer does."""
     name = subdir or f"{table or 'free'}/{task}/{row or label}/seed{seed}"
     run = root / name
@@ -43,7 +44,8 @@ def make_run(root: Path, task: str, seed: int, label: str, returns: list[float],
         best = int(np.argmax(returns))
         (run / "result.json").write_text(json.dumps({
             "best_return": returns[best], "best_step": (best + 1) * every, "steps_done": len(returns) * every,
-            "steps_total": 1_000_000, "finished": finished}))
+            "steps_total": 1_000_000, "finished": finished}
+            | ({} if wall_seconds is None else {"wall_seconds": wall_seconds})))
     return run
 
 
@@ -67,6 +69,16 @@ def test_cell_is_mean_and_sample_std_of_each_seeds_best_evaluation(tmp_path: Pat
     # deviations −250/3, 50/3, 200/3 → variance (62500 + 2500 + 40000) / 9 / (3 − 1) (ddof=1)
     assert cell.std == pytest.approx(math.sqrt(35000 / 6))
     assert cell.std != pytest.approx(np.std([3500, 3600, 3650], ddof=0))
+
+
+def test_each_seed_run_shows_its_training_wall_time_when_recorded(tmp_path: Path) -> None:
+    intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500], wall_seconds=5.25 * 3600)
+    intra_run(tmp_path, "Hopper", "intra", 1, [900, 3400])  # a run written before wall_seconds was recorded
+    lines = render_markdown(build_table(collect_runs(tmp_path), "intra")).splitlines()
+    header = next(line for line in lines if line.startswith("| Row | Task | Seed |")).split(" | ")
+    rows = {line.split(" | ")[2]: line.split(" | ") for line in lines if line.startswith("| I\\_intra | Hopper |")}
+    column = header.index("Wall time")
+    assert (rows["0"][column], rows["1"][column]) == ("5.2 h", "—")
 
 
 def test_a_one_seed_cell_shows_its_mean_without_a_spread(tmp_path: Path) -> None:

@@ -61,6 +61,9 @@ class RunRecord:
     diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
     """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.snn.diagnostics.DIAGNOSTICS`) at each of ``steps``,
     NaN where it was not measured."""
+    wall_seconds: float | None = field(default=None, hash=False, compare=False)
+    """Wall-clock time of the training process to ``steps_done`` (result.json; seeds stacked in one process share
+    it), None when not recorded."""
 
     def evaluation_rows(self) -> list[dict[str, float]]:
         """``metrics.csv`` as rows of step, return and diagnostics, as the training loop keeps its evaluations."""
@@ -162,7 +165,13 @@ def read_run(directory: str | Path) -> RunRecord:
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
         finished=finished, steps=steps, returns=returns, td3=td3,
         diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
+        wall_seconds=_wall_seconds(result),
     )
+
+
+def _wall_seconds(result: Mapping[str, Any] | None) -> float | None:
+    value = None if result is None else result.get("wall_seconds")
+    return None if value is None else _number(value, "wall_seconds")
 
 
 def _optional_str(config: Mapping[str, Any], key: str) -> str | None:

@@ -129,21 +129,26 @@ def _md_seeds(result: TableResult) -> list[str]:
     if not runs:
         return []
     stuck = sum(run.stuck for _, _, run in runs)
-    header = ["Row", "Task", "Seed", "Best (step)", "Last", "Steps",
+    header = ["Row", "Task", "Seed", "Best (step)", "Last", "Steps", "Wall time",
               *(DIAGNOSTIC_HEADERS[name] for name in DIAGNOSTICS), "Stuck"]
     lines = [f"Seed runs of `{result.name or result.caption}` ({len(runs)}; stuck at their last evaluations: {stuck}). "
              "Diagnostics at the last evaluation: share of saturated actions, of output neurons with the same spike "
              "train for every replayed state, of output-neuron steps inside the surrogate window, mean |pre-tanh "
              "output|, and the action spread (the largest range of an action component over the evaluation, in units "
              "of its full range); stuck = one constant saturated action at the last "
-             f"{STUCK_EVALUATIONS} evaluations after the random phase.", "",
+             f"{STUCK_EVALUATIONS} evaluations after the random phase. Wall time: the training process's to the "
+             "steps done, resumes included (seeds stacked in one process share it).", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row, cell, run in runs:
         values = [_md_escape(row.label), cell.task, str(run.seed), f"{run.best_return:.1f} ({_steps(run.best_step)})",
-                  f"{run.returns[-1]:.1f}" if run.returns else "—", _steps(run.steps_done),
+                  f"{run.returns[-1]:.1f}" if run.returns else "—", _steps(run.steps_done), _hours(run.wall_seconds),
                   *(_diagnostic(run, name) for name in DIAGNOSTICS), "**stuck**" if run.stuck else ""]
         lines.append("| " + " | ".join(values) + " |")
     return [*lines, ""]
+
+
+def _hours(seconds: float | None) -> str:
+    return "—" if seconds is None else f"{seconds / 3600:.1f} h"
 
 
 def _steps(count: int) -> str:
