@@ -161,3 +161,66 @@ def test_demo_trains_the_documented_run_and_compares_with_random(monkeypatch, tm
     (tmp_path / "demo" / "metrics.csv").write_text("step,eval_return_mean\n1000,-1300.0\n")
     assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
     assert seen["resume"], "running the quick start again continues the demo it holds instead of refusing"
+
+
+# ------------------------------------------------------------------------------- train --like RUN
+LIKED = RunConfig(task="Pendulum-v1", steps=300, eval_every=150, eval_episodes=1, label="mine", table="intra",
+                  row="self", checkpoint_minutes=0.0,
+                  actor=actor_config("ilc-san", hidden=(16, 16), intra="self", decoder="max", alpha_v_li=0.75),
+                  td3=TD3Config(start_steps=150, update_after=100, batch_size=16, gamma=0.98))
+"""A run with switches off the preset, a TD3 setting that has no flag (γ), a label and a grid's tags."""
+
+
+@pytest.fixture
+def liked_run(tmp_path):
+    from ilcsan.runs.directory import RunDirectory
+
+    RunDirectory(tmp_path / "liked").write_config(LIKED, seed=7)
+    return tmp_path / "liked"
+
+
+def _like(*argv):
+    from ilcsan.cli import parse_arguments
+
+    return build_run_config(parse_arguments(build_parser(), ["train", *argv]))
+
+
+def test_train_like_a_run_takes_every_setting_but_its_seeds_and_grid_tags(liked_run):
+    untagged = dataclasses.replace(LIKED, table=None, row=None)
+    assert _like("--like", str(liked_run)) == untagged  # seeds: the flag's default, 0
+    assert _like("--like", str(liked_run / "config.json"), "--seeds", "3-4") == dataclasses.replace(untagged,
+                                                                                                     seeds=(3, 4))
+
+
+def test_each_flag_given_with_like_changes_that_one_setting(liked_run):
+    changed = _like("--like", str(liked_run), "--intra", "none", "--steps", "1000000", "--hidden-width", "32",
+                    "--batch-size", "100")
+    expected = dataclasses.replace(
+        LIKED, table=None, row=None, steps=1_000_000,  # the default's value given explicitly still counts
+        actor=dataclasses.replace(LIKED.actor, intra="none", hidden=(32, 32)),
+        td3=dataclasses.replace(LIKED.td3, batch_size=100))
+    assert changed == expected
+
+
+def test_train_like_trains_that_configuration_and_notes_a_label_kept_for_another_actor(liked_run, tmp_path,
+                                                                                      capsys):
+    import json
+
+    out = tmp_path / "again"
+    assert main(["train", "--like", str(liked_run), "--seeds", "1", "--intra", "none", "--no-progress",
+                 "--out", str(out)]) == 0
+    assert "note: this run keeps the label 'mine'" in capsys.readouterr().out
+    saved = RunConfig.from_dict(json.loads((out / "config.json").read_text()))
+    assert saved == dataclasses.replace(LIKED, seeds=(1,), table=None, row=None,
+                                        actor=dataclasses.replace(LIKED.actor, intra="none"))
+
+
+def test_train_like_refuses_another_preset_or_a_folder_without_a_run_in_one_line(liked_run, tmp_path, capsys):
+    for argv, fragment in (
+            (["--like", str(liked_run), "--actor", "popsan"], "copies that run's actor (ilc-san with its switches)"),
+            (["--like", str(tmp_path / "nowhere")], "config.json: cannot be read"),
+            (["--like", str(liked_run / "metrics.csv")], "pass a run folder or its config.json")):
+        (liked_run / "metrics.csv").write_text("step\n")
+        code = main(["train", *argv])
+        err = capsys.readouterr().err
+        assert code == 2 and len(err.strip().splitlines()) == 1 and fragment in err, err

@@ -22,6 +22,8 @@ from .options import (
     _positive_int,
     add_setting,
     choices_help,
+    like_defaults,
+    liked_run_config,
 )
 
 EXIT_USER_ERROR = 2
@@ -33,6 +35,9 @@ _GRIDS = "default: the grid's; paper: {paper}"
 
 class _Parser(argparse.ArgumentParser):
     """argparse whose errors are one line and exit code 2."""
+
+    commands: dict[str, argparse.ArgumentParser]
+    """The sub-commands' parsers by name (on the top-level parser)."""
 
     def error(self, message: str):  # noqa: D102
         raise UserError(f"{self.prog}: {message} (see `{self.prog} --help`)")
@@ -48,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
                         _add_report_command, _add_energy_command, _add_actors_command, _add_tasks_command,
                         _add_demo_command, _add_lava_command):
         add_command(subparsers)
+    parser.commands = subparsers.choices
     return parser
 
 
@@ -63,6 +69,8 @@ def _add_train_command(subparsers) -> None:
     train.add_argument("--out", help="run directory (default runs/<task>-<actor>-s<seeds>)")
     train.add_argument("--resume", action="store_true",
                        help="continue the run in --out from its last checkpoint (a larger --steps extends it)")
+    train.add_argument("--like", metavar="RUN", help="start from every setting of the run in RUN (task, actor, TD3 "
+                       "and run options, --steps, --label; not its seeds): each flag given here changes that one")
     train.add_argument("--label", help="row label for reports (default: the preset)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar (one line per evaluation)")
     train.set_defaults(handler=commands.cmd_train)
@@ -202,12 +210,27 @@ def _one_line(error: Exception) -> str:
     return "".join(char if char.isprintable() else repr(char)[1:-1] for char in str(error))
 
 
+def parse_arguments(parser: _Parser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse ``argv``; for ``train --like RUN``, once more with that run's settings as the defaults, so that only the
+    flags given change it (``args.like_config`` is the liked run's RunConfig)."""
+    args = parser.parse_args(argv)
+    if getattr(args, "like", None):
+        like = liked_run_config(args.like)
+        parser.commands["train"].set_defaults(**like_defaults(like))
+        args = parser.parse_args(argv)
+        args.like_config = like
+        if args.preset != like.actor.preset:
+            raise UserError(f"--like {args.like} copies that run's actor ({like.actor.preset} with its switches); to "
+                            f"train {args.preset}, start from its preset without --like")
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ilcsan`` console script."""
     parser = build_parser()
     args = None
     try:
-        args = parser.parse_args(argv)
+        args = parse_arguments(parser, argv)
         if args.command is None:
             parser.print_help()
             return EXIT_USER_ERROR

@@ -25,6 +25,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ..rl.training import train
 
     config = build_run_config(args)
+    if args.like:
+        _note_a_kept_label(config, args.like_config, args.like)
     seeds = args.seeds.replace(",", "_")
     out = Path(args.out or f"runs/{task_file_name(config.task)}-{config.actor.preset}-s{seeds}")
     results = train(config, out, resume=args.resume, progress=None if not args.no_progress else False)
@@ -50,6 +52,20 @@ def _print_results(results: list[dict[str, Any]], out: Path) -> None:
         stat = f"{np.mean(bests):.1f}" + (f" ± {spread:.1f}" if spread is not None else "")
         print(f"best average evaluation return {stat} over {len(bests)} seeds (sample std) "
               f"({', '.join(f'{b:.1f}' for b in bests)}); results in {out}/seed*")
+
+
+def _note_a_kept_label(config: RunConfig, like: RunConfig, path: str) -> None:
+    """``train --like``: say so when the run keeps the liked run's label but not its actor or training method, so
+    that a report does not put the two in one row unknowingly."""
+    from ..analysis.collect import configuration_key
+
+    def key(run: RunConfig) -> str:
+        return configuration_key(run.actor.to_dict(), run.td3.to_dict())
+
+    custom = like.label not in (None, like.actor.preset)  # a preset's own name is every such run's default label
+    if custom and config.label == like.label and key(config) != key(like):
+        print(f"note: this run keeps the label {config.label!r} of {path}, whose actor or training method differs; "
+              "give --label to report it in a row of its own")
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+from pathlib import Path
 from typing import Any
 
 from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of, setting_type
@@ -167,16 +168,59 @@ def _add_run_options(parser: argparse.ArgumentParser) -> None:
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
-    """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments."""
+    """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments; with ``--like``, TD3 settings that have
+    no flag (γ, τ, the critic, ...) are the liked run's."""
+    like = getattr(args, "like_config", None)
+    td3 = {name: getattr(args, name) for name in TD3_SETTINGS}
     config = RunConfig(
         task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
         actor=actor_config(args.preset, **actor_overrides(args)),
-        td3=TD3Config(**{name: getattr(args, name) for name in TD3_SETTINGS}),
+        td3=dataclasses.replace(like.td3, **td3) if like is not None else TD3Config(**td3),
         label=getattr(args, "label", None), **{name: getattr(args, name) for name in RUN_SETTINGS},
     )
     check_settings(config)
     check_settings(config.td3)
     return config
+
+
+# ------------------------------------------------------------------------------- train --like RUN
+def liked_run_config(path: str) -> RunConfig:
+    """The settings of the run at ``path`` (a run folder, a folder of stacked seeds, which share their settings, or
+    a run's config.json), for ``train --like``; one-line UserError when there is none."""
+    from ..runs.directory import CONFIG, RunDirectory, RunFileError
+
+    given = Path(path)
+    if given.is_file() and given.name != CONFIG:
+        raise UserError(f"--like {path}: pass a run folder or its {CONFIG}")
+    folder = given.parent if given.is_file() else given
+    if given.is_dir() and not RunDirectory(given).file(CONFIG).is_file():
+        seeds = sorted(p for p in given.glob("seed*") if RunDirectory(p).file(CONFIG).is_file())
+        folder = seeds[0] if seeds else given
+    try:
+        return RunConfig.from_dict(RunDirectory(folder).config_object())
+    except RunFileError as error:
+        raise UserError(f"--like {path}: {error}; pass a run folder (it holds config.json)") from None
+    except UserError:
+        raise
+    except (KeyError, TypeError, ValueError) as error:
+        raise UserError(f"--like {path}: its config.json is not an ilcsan run's ({error})") from None
+
+
+def like_defaults(config: RunConfig) -> dict[str, Any]:
+    """``train``'s option values that give ``config``: defaults for ``--like``, which the flags given override. The
+    seeds are not taken (give --seeds), nor a grid's table and row: the new run is a ``train`` run, which
+    ``ilcsan report`` places by its label, or with ``--table`` by its settings."""
+    values: dict[str, Any] = {"task": config.task, "steps": config.steps, "label": config.label,
+                              "preset": config.actor.preset}
+    values |= {name: getattr(config, name) for name in RUN_SETTINGS}
+    values |= {name: getattr(config.td3, name) for name in TD3_SETTINGS}
+    for item in dataclasses.fields(ActorConfig):
+        value = getattr(config.actor, item.name)
+        for part in item.metadata["switches"]:
+            values[part.flag.replace("-", "_")] = part.default_of(value)
+        if not item.metadata["switches"] and item.name != "preset":
+            values[item.name] = value
+    return values
 
 
 def choices_help(choices: dict[str, str], default: str) -> str:
