@@ -96,6 +96,8 @@ def test_an_episode_that_does_not_end_leaves_no_file(trained_run, tmp_path):
     assert list(tmp_path.iterdir()) == []  # neither a video nor a temporary file
 
 
+# Gymnasium's OffScreenViewer, whose OpenGL context was never made, fails in its __del__ (ignored by Python)
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 def test_a_machine_that_cannot_render_gets_one_line_that_says_what_to_set(tmp_path):
     import mujoco  # noqa: F401 - imported before, as in any process that has built a MuJoCo task
 
@@ -104,6 +106,13 @@ def test_a_machine_that_cannot_render_gets_one_line_that_says_what_to_set(tmp_pa
         run_episodes(lambda observation: np.zeros(1), "InvertedPendulum-v5", 1, video=tmp_path)
     assert str(raised.value).endswith(RENDERING_FIX) and "\n" not in str(raised.value)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_that_cannot_hold_videos_is_one_line(tmp_path):
+    (tmp_path / "a-file").write_text("")
+    with pytest.raises(UserError, match="cannot write the video .*a-file/videos/Pendulum-v1-seed0.mp4") as raised:
+        run_episodes(lambda observation: np.zeros(1), "Pendulum-v1", 1, video=tmp_path / "a-file" / "videos")
+    assert "\n" not in str(raised.value)
 
 
 def test_the_command_names_the_videos_and_says_how_to_get_the_encoder(trained_run, tmp_path, capsys, monkeypatch):

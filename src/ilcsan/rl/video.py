@@ -97,40 +97,43 @@ def _episode_writer(path: Path, first_frame: np.ndarray, fps: float) -> Generato
     """A coroutine that encodes the frames sent to it into ``path``: ``close()`` after the last frame finishes the
     file and renames it into place; throwing :class:`EpisodeAbandoned` in removes the temporary file."""
     height, width = first_frame.shape[:2]
-    with replacing(path) as temporary:
-        frames = ffmpeg().write_frames(temporary, (width, height), fps=fps, macro_block_size=2,
-                                       ffmpeg_log_level="error", output_params=["-f", "mp4"])
-        frames.send(None)
-        try:
-            frame = first_frame
-            while True:
-                frames.send(np.ascontiguousarray(frame, dtype=np.uint8))
-                frame = yield
-        except GeneratorExit:
-            pass
-        finally:
-            frames.close()
+    encoder = ffmpeg()
+    try:
+        with replacing(path) as temporary:
+            frames = encoder.write_frames(temporary, (width, height), fps=fps, macro_block_size=2,
+                                          ffmpeg_log_level="error", output_params=["-f", "mp4"])
+            frames.send(None)
+            try:
+                frame = first_frame
+                while True:
+                    frames.send(np.ascontiguousarray(frame, dtype=np.uint8))
+                    frame = yield
+            except GeneratorExit:
+                pass
+            finally:
+                frames.close()
+    except OSError as error:  # a folder that cannot be written, a full disk, ffmpeg stopping
+        cause = (str(error).strip().splitlines() or [type(error).__name__])[0]
+        raise UserError(f"cannot write the video {path}: {cause}") from None
 
 
 class EpisodeVideo(gymnasium.Wrapper):
     """Records every episode of the wrapped environment (made with ``render_mode="rgb_array"``) to
-    :func:`video_path` ``(folder, task, seed)``, the seed being the one its reset was given. ``written`` lists the
-    finished files in the order their episodes ended."""
+    :func:`video_path` ``(folder, task, seed)``, the seed being the one its reset was given."""
 
     def __init__(self, env, folder: Path, task: str):
         super().__init__(env)
         self.folder, self.task = Path(folder), task
         self.fps = float(env.metadata.get("render_fps") or 30)
         _prepare_mujoco_rendering(env)
-        self.written: list[Path] = []
         self._writer: Generator[None, np.ndarray, None] | None = None
-        self._path: Path | None = None
 
     def reset(self, *, seed: int | None = None, options=None):
         self._abandon()
         result = self.env.reset(seed=seed, options=options)
-        self._path = video_path(self.folder, self.task, -1 if seed is None else seed)
-        self._writer = _episode_writer(self._path, self._frame(), self.fps)
+        if seed is None:
+            raise ValueError("EpisodeVideo names each video by its episode's seed: reset it with one")
+        self._writer = _episode_writer(video_path(self.folder, self.task, seed), self._frame(), self.fps)
         next(self._writer)
         return result
 
@@ -140,7 +143,6 @@ class EpisodeVideo(gymnasium.Wrapper):
             self._writer.send(self._frame())
             if result[2] or result[3]:  # terminated or truncated: the episode's video is complete
                 self._writer.close()
-                self.written.append(self._path)
                 self._writer = None
         return result
 
