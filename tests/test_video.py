@@ -3,6 +3,7 @@ half-written, and progress on long evaluations."""
 
 from __future__ import annotations
 
+import gc
 import os
 import re
 import sys
@@ -106,6 +107,8 @@ def test_a_machine_that_cannot_render_gets_one_line_that_says_what_to_set(tmp_pa
         run_episodes(lambda observation: np.zeros(1), "InvertedPendulum-v5", 1, video=tmp_path)
     assert str(raised.value).endswith(RENDERING_FIX) and "\n" not in str(raised.value)
     assert list(tmp_path.iterdir()) == []
+    del raised
+    gc.collect()  # that viewer's __del__ runs here, under this test's filter
 
 
 def test_a_folder_that_cannot_hold_videos_is_one_line(tmp_path):
