@@ -211,4 +211,5 @@ def cmd_demo(args: argparse.Namespace) -> int:
               f"scored {best:.1f} (step {step}){ending} (higher is better)")
     print(f"learning curve: {picture}; deploy it with `ilcsan export {out} --format npz`, "
           f"or in Python: ilcsan.load('{out}').predict(obs)")
+    print(f"watch it: `ilcsan evaluate {out} --episodes 1 --video {out}/videos` writes an MP4 of one episode")
     return 0
