@@ -181,8 +181,9 @@ def _stub_train(config, out, resume=False, progress=None, log=print):
     return [dict(result, best_return=-1.0, best_step=config.eval_every) for result in trainer.results()]
 
 
-def _one_action_episodes(act, task, episodes, seed=0, batched=False):
-    """Stands in for evaluation.run_episodes: the real environment and one real action, not whole episodes."""
+def _one_action_episodes(act, task, episodes, seed=0, batched=False, video=None, progress=False):
+    """Stands in for evaluation.run_episodes: the real environment and one real action, not whole episodes (no video,
+    no progress bar)."""
     from ilcsan.rl.tasks import make_env
 
     env = make_env(task)

@@ -189,14 +189,16 @@ def liked_run_config(path: str) -> RunConfig:
     a run's config.json), for ``train --like``; one-line UserError when there is none."""
     from ..runs.directory import CONFIG, RunDirectory, RunFileError
 
+    if "\0" in path:
+        raise UserError(f"--like {path!r} is not a path")
     given = Path(path)
-    if given.is_file() and given.name != CONFIG:
-        raise UserError(f"--like {path}: pass a run folder or its {CONFIG}")
-    folder = given.parent if given.is_file() else given
-    if given.is_dir() and not RunDirectory(given).file(CONFIG).is_file():
-        seeds = sorted(p for p in given.glob("seed*") if RunDirectory(p).file(CONFIG).is_file())
-        folder = seeds[0] if seeds else given
     try:
+        if given.is_file() and given.name != CONFIG:
+            raise UserError(f"--like {path}: pass a run folder or its {CONFIG}")
+        folder = given.parent if given.is_file() else given
+        if given.is_dir() and not RunDirectory(given).file(CONFIG).is_file():
+            seeds = sorted(p for p in given.glob("seed*") if RunDirectory(p).file(CONFIG).is_file())
+            folder = seeds[0] if seeds else given
         return RunConfig.from_dict(RunDirectory(folder).config_object())
     except RunFileError as error:
         raise UserError(f"--like {path}: {error}; pass a run folder (it holds config.json)") from None

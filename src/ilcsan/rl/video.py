@@ -112,7 +112,7 @@ def _episode_writer(path: Path, first_frame: np.ndarray, fps: float) -> Generato
                 pass
             finally:
                 frames.close()
-    except OSError as error:  # a folder that cannot be written, a full disk, ffmpeg stopping
+    except (OSError, ValueError) as error:  # a folder that cannot be written or named, a full disk, ffmpeg stopping
         cause = (str(error).strip().splitlines() or [type(error).__name__])[0]
         raise UserError(f"cannot write the video {path}: {cause}") from None
 
