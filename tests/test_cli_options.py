@@ -166,9 +166,10 @@ def test_demo_trains_the_documented_run_and_compares_with_random(monkeypatch, tm
 # ------------------------------------------------------------------------------- train --like RUN
 LIKED = RunConfig(task="Pendulum-v1", steps=300, eval_every=150, eval_episodes=1, label="mine", table="intra",
                   row="self", checkpoint_minutes=0.0,
-                  actor=actor_config("ilc-san", hidden=(16, 16), intra="self", decoder="max", alpha_v_li=0.75),
+                  actor=actor_config("ilc-san", hidden=(24, 16), intra="self", decoder="max", alpha_v_li=0.75),
                   td3=TD3Config(start_steps=150, update_after=100, batch_size=16, gamma=0.98))
-"""A run with switches off the preset, a TD3 setting that has no flag (γ), a label and a grid's tags."""
+"""A run with switches off the preset (widths the switches cannot express among them), a TD3 setting that has no flag
+(γ), a label and a grid's tags."""
 
 
 @pytest.fixture

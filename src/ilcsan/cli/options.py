@@ -174,7 +174,7 @@ def build_run_config(args: argparse.Namespace, task: str | None = None):
     td3 = {name: getattr(args, name) for name in TD3_SETTINGS}
     config = RunConfig(
         task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
-        actor=actor_config(args.preset, **actor_overrides(args)),
+        actor=actor_config(args.preset, **_actor_settings(args, like)),
         td3=dataclasses.replace(like.td3, **td3) if like is not None else TD3Config(**td3),
         label=getattr(args, "label", None), **{name: getattr(args, name) for name in RUN_SETTINGS},
     )
@@ -184,6 +184,22 @@ def build_run_config(args: argparse.Namespace, task: str | None = None):
 
 
 # ------------------------------------------------------------------------------- train --like RUN
+def _actor_settings(args: argparse.Namespace, like: RunConfig | None) -> dict[str, Any]:
+    """The actor switches given; with ``--like``, a field offered through several switches (``hidden``) that none
+    of them changed is the liked run's own value, which those switches may not express (widths 256, 128)."""
+    settings = actor_overrides(args)
+    if like is None:
+        return settings
+    for item in dataclasses.fields(ActorConfig):
+        liked = getattr(like.actor, item.name)
+        parts = {part.flag.replace("-", "_"): part.default_of(liked) for part in item.metadata["switches"]}
+        if parts and all(settings.get(name) == value for name, value in parts.items()):
+            for name in parts:
+                settings.pop(name)
+            settings[item.name] = liked
+    return settings
+
+
 def liked_run_config(path: str) -> RunConfig:
     """The settings of the run at ``path`` (a run folder, a folder of stacked seeds, which share their settings, or
     a run's config.json), for ``train --like``; one-line UserError when there is none."""
