@@ -111,7 +111,7 @@ def _import_task_module(module: str, name: str) -> None:
     try:
         importlib.import_module(module)
     except Exception as error:  # noqa: BLE001 - the module is the user's code: any failure is reported in one line
-        cause = _one_line(str(error)) or type(error).__name__
+        cause = one_line(str(error)) or type(error).__name__
         raise UserError(f"task {name!r}: cannot import module {module!r} ({cause}); install it, or add its folder "
                         "to PYTHONPATH") from None
 
@@ -146,7 +146,7 @@ def _quiet_environment_creation():
         os.close(saved)
 
 
-def _one_line(text: str) -> str:
+def one_line(text: str) -> str:
     """An exception's message as one plain line: terminal colour codes dropped, whitespace collapsed."""
     return " ".join(re.sub(r"\x1b\[[0-9;]*m", "", text).split()).rstrip(".")
 
@@ -196,7 +196,7 @@ def _build(name: str, gym_id: str, kwargs: dict[str, Any], seed: int | None):
         if env is not None:
             with contextlib.suppress(Exception):
                 env.close()
-        cause = _one_line(str(error)) or type(error).__name__
+        cause = one_line(str(error)) or type(error).__name__
         shown = name if name == gym_id else f"{name} ({gym_id})"
         if "render_mode" in kwargs:
             raise UserError(f"task {shown!r} cannot be built for rendering here: {cause}; {RENDERING_FIX}") from None

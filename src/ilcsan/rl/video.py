@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..files import replacing
-from .tasks import RENDERING_FIX, task_file_name
+from .tasks import RENDERING_FIX, one_line, task_file_name
 
 INSTALL_HINT = "pip install 'ilcsan[video]' (scripts/setup installs it)"
 """How to get the encoder when it is missing."""
@@ -129,10 +129,10 @@ class EpisodeVideo(gymnasium.Wrapper):
         self._writer: Generator[None, np.ndarray, None] | None = None
 
     def reset(self, *, seed: int | None = None, options=None):
-        self._abandon()
-        result = self.env.reset(seed=seed, options=options)
         if seed is None:
             raise ValueError("EpisodeVideo names each video by its episode's seed: reset it with one")
+        self._abandon()
+        result = self.env.reset(seed=seed, options=options)
         self._writer = _episode_writer(video_path(self.folder, self.task, seed), self._frame(), self.fps)
         next(self._writer)
         return result
@@ -154,7 +154,7 @@ class EpisodeVideo(gymnasium.Wrapper):
         try:
             frame = self.env.render()
         except Exception as error:  # noqa: BLE001 - every rendering failure is reported in one line
-            cause = " ".join(str(error).split()) or type(error).__name__
+            cause = one_line(str(error)) or type(error).__name__
             raise UserError(f"task {self.task!r} cannot be rendered on this machine: {cause}; {RENDERING_FIX}"
                             ) from None
         if not isinstance(frame, np.ndarray) or frame.ndim != 3:
