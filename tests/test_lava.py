@@ -167,6 +167,7 @@ def test_the_closed_loop_command_plays_the_mirror_like_the_runtime(tmp_path, cap
         returns[engine] = result["returns"]
         assert result["checked_actions"] == min(20, result["lengths"][0])
         assert result["max_action_error"] <= TOLERANCE and result["actions_off"] == 0
+        assert result["median_action_error"] <= result["p90_action_error"] <= result["max_action_error"]
     assert returns["mirror"] == pytest.approx(returns["numpy"], abs=1e-3)
     (tmp_path / "broken.npz").write_text("not a bundle")
     assert main([str(tmp_path / "broken.npz"), "--engine", "mirror", "--episodes", "1"]) == 2

@@ -186,7 +186,8 @@ def _add_lava_command(subparsers) -> None:
                       help="Loihi 2's bit-accurate fixed-point models: 8-bit weights with exponents, 24-bit states "
                            "(default: floating point)")
     lava.add_argument("--check", type=_non_negative_int, default=0, metavar="N",
-                      help="also print the largest action error against the numpy runtime over the first N actions")
+                      help="also print the largest, median and 90th-percentile action error against the numpy "
+                           "runtime over the first N actions")
     lava.add_argument("--json", help="also write the results to this JSON file")
     lava.set_defaults(handler=commands.cmd_lava)
 

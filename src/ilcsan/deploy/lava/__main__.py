@@ -41,7 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--fixed-point", action="store_true",
                         help="Loihi 2's bit-accurate fixed-point models (default: floating point)")
     parser.add_argument("--check", type=int, default=0, metavar="N",
-                        help="compare the first N actions with the bundle's numpy runtime (default 0: no check)")
+                        help="compare the first N actions with the bundle's numpy runtime: largest, median and "
+                             "90th-percentile error (default 0: no check)")
     parser.add_argument("--json", help="also write the results to this JSON file")
     parser.add_argument("--engine", choices=ENGINES, default="lava",
                         help="lava (default); mirror: the same network with Lava's rules simulated in numpy "
@@ -146,6 +147,8 @@ def run(args: argparse.Namespace) -> dict:
               "returns": returns, "lengths": lengths, "episode_seconds": seconds,
               "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
               "checked_actions": len(errors), "max_action_error": max(errors) if errors else None,
+              "median_action_error": float(np.median(errors)) if errors else None,
+              "p90_action_error": float(np.percentile(errors, 90)) if errors else None,
               "actions_off": sum(error > CHECK_TOLERANCE for error in errors),
               "wall_seconds": time.perf_counter() - start}
     if getattr(engine, "fixed", None) is not None:
@@ -164,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{result['mean_return']:.1f} ± {result['std_return']:.1f}, average length {np.mean(result['lengths']):.0f}")
     if result["max_action_error"] is not None:
         print(f"largest action error against the numpy runtime over {result['checked_actions']} actions: "
-              f"{result['max_action_error']:.3g} ({result['actions_off']} off by more than {CHECK_TOLERANCE:g})")
+              f"{result['max_action_error']:.3g} (median {result['median_action_error']:.3g}, 90th percentile "
+              f"{result['p90_action_error']:.3g}; {result['actions_off']} off by more than {CHECK_TOLERANCE:g})")
     if args.json:
         target = Path(args.json)
         partial = target.with_name(target.name + ".partial")
