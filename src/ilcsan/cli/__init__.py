@@ -12,6 +12,7 @@ import sys
 
 from .. import __version__
 from ..config import BACKENDS, COLLAPSE_RETURN, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TD3Config
+from ..deploy.lava import run_options
 from ..errors import TrainingDiverged, UserError
 from ..paper.layouts import SEEDS, TABLES
 from . import commands, grid_commands
@@ -176,19 +177,10 @@ def _add_tasks_command(subparsers) -> None:
 def _add_lava_command(subparsers) -> None:
     """``ilcsan lava RUN|BUNDLE``: the actor in Lava's simulator of Loihi 2, closed loop."""
     lava = subparsers.add_parser("lava", help="run a trained actor in Lava (Loihi 2's SDK), closed loop",
+                                 parents=[run_options()],
                                  description="Run a trained actor as Lava processes in Lava's simulator of Loihi 2, "
                                              "closed loop on its task (needs `bash scripts/setup-lava`).")
     lava.add_argument("run", help="run directory, policy.pt, checkpoint.pt or a deploy bundle (.npz)")
-    lava.add_argument("--episodes", type=_positive_int, default=10, help="deterministic episodes (paper: 10)")
-    lava.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed of the first episode")
-    lava.add_argument("--task", help="task (default: the actor's)")
-    lava.add_argument("--fixed-point", action="store_true",
-                      help="Loihi 2's bit-accurate fixed-point models: 8-bit weights with exponents, 24-bit states "
-                           "(default: floating point)")
-    lava.add_argument("--check", type=_non_negative_int, default=0, metavar="N",
-                      help="also print the largest, median and 90th-percentile action error against the numpy "
-                           "runtime over the first N actions")
-    lava.add_argument("--json", help="also write the results to this JSON file")
     lava.set_defaults(handler=commands.cmd_lava)
 
 

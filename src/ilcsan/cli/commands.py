@@ -119,18 +119,15 @@ def cmd_lava(args: argparse.Namespace) -> int:
     import tempfile
 
     from ..deploy import export
-    from ..deploy.lava import lava_python
+    from ..deploy.lava import check_run_options, lava_python, run_arguments
 
+    check_run_options(args)
     python = lava_python()
     with tempfile.TemporaryDirectory(prefix="ilcsan-lava-") as folder:
         bundle = Path(args.run)
         if bundle.suffix != ".npz":
             bundle = export.export(args.run, "npz", Path(folder) / "actor.npz")
-        command = [str(python), "-m", "ilcsan.deploy.lava", str(bundle), "--episodes", str(args.episodes),
-                   "--seed", str(args.seed), "--check", str(args.check)]
-        command += ["--task", args.task] if args.task else []
-        command += ["--fixed-point"] if args.fixed_point else []
-        command += ["--json", args.json] if args.json else []
+        command = [str(python), "-m", "ilcsan.deploy.lava", str(bundle), *run_arguments(args)]
         return subprocess.run(command, check=False).returncode
 
 

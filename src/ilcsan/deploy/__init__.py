@@ -5,6 +5,14 @@ numpy-only modules (it can be copied alone); :mod:`ilcsan.deploy.bundle`, :mod:`
 :mod:`ilcsan.deploy.quantize` are imported only when used (the first two need torch).
 """
 
-from .runtime import SCALE_SUFFIX, DeployedActor
-
 __all__ = ["DeployedActor", "SCALE_SUFFIX"]
+
+
+def __getattr__(name: str):
+    """``DeployedActor`` and ``SCALE_SUFFIX`` from :mod:`.runtime`, imported on first use, so that importing a
+    submodule (the CLI reads :mod:`.lava`'s options at start) does not import numpy."""
+    if name in __all__:
+        from . import runtime
+
+        return getattr(runtime, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -7,10 +7,9 @@ that environment, which ``ilcsan lava`` calls) runs the task closed loop and com
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
-
-from ..runtime.errors import UserError
 
 LAVA_PYTHON_VARIABLE = "ILCSAN_LAVA_PYTHON"
 SETUP = "bash scripts/setup-lava"
@@ -21,6 +20,8 @@ INSTALLED_STAMP = ".ilcsan-installed"
 def lava_python() -> Path:
     """The Python of the Lava environment: ``$ILCSAN_LAVA_PYTHON``, else the checkout's ``.venv-lava`` once
     ``scripts/setup-lava`` has finished installing it."""
+    from ..runtime.errors import UserError
+
     configured = os.environ.get(LAVA_PYTHON_VARIABLE)
     environment = Path(__file__).resolve().parents[4] / ".venv-lava"
     python = Path(configured) if configured else environment / "bin" / "python"
@@ -29,3 +30,36 @@ def lava_python() -> Path:
         raise UserError(f"Lava's environment {python} is missing or incomplete: run `{SETUP}` in the checkout (it "
                         f"needs Python 3.10) or set {LAVA_PYTHON_VARIABLE} to a Python with lava-nc")
     return python
+
+
+def run_options() -> argparse.ArgumentParser:
+    """The options of a closed-loop run, as a parent parser: declared once for ``ilcsan lava`` and for
+    ``python -m ilcsan.deploy.lava`` (which ``ilcsan lava`` calls with :func:`run_arguments`)."""
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--episodes", type=int, default=10, help="deterministic episodes (default 10, the paper's)")
+    parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode (default 0)")
+    parser.add_argument("--task", help="task (default: the actor's)")
+    parser.add_argument("--fixed-point", action="store_true",
+                        help="Loihi 2's bit-accurate fixed-point models: 8-bit weights with exponents, 24-bit "
+                             "states (default: floating point)")
+    parser.add_argument("--check", type=int, default=0, metavar="N",
+                        help="compare the first N actions with the bundle's numpy runtime: largest, median and "
+                             "90th-percentile error (default 0: no check)")
+    parser.add_argument("--json", help="also write the results to this JSON file")
+    return parser
+
+
+def check_run_options(args: argparse.Namespace) -> None:
+    """One line for counts out of range (before anything is exported or started)."""
+    from ..runtime.errors import UserError
+
+    if args.episodes < 1 or args.seed < 0 or args.check < 0:
+        raise UserError("--episodes must be at least 1, --seed and --check at least 0")
+
+
+def run_arguments(args: argparse.Namespace) -> list[str]:
+    """The :func:`run_options` of ``args`` as command-line arguments."""
+    arguments = ["--episodes", str(args.episodes), "--seed", str(args.seed), "--check", str(args.check)]
+    arguments += ["--task", args.task] if args.task else []
+    arguments += ["--fixed-point"] if args.fixed_point else []
+    return arguments + (["--json", args.json] if args.json else [])

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..runtime import DeployedActor
 from ..runtime.errors import UserError
+from . import check_run_options, run_options
 from .plan import encoder_spikes, fix_plan, host_action, plan_actor, simulate
 
 EXIT_USER_ERROR = 2
@@ -32,18 +33,9 @@ CHECK_TOLERANCE = 1e-5
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m ilcsan.deploy.lava",
+    parser = argparse.ArgumentParser(prog="python -m ilcsan.deploy.lava", parents=[run_options()],
                                      description="Run a deploy bundle in Lava (Loihi 2's SDK), closed loop.")
     parser.add_argument("bundle", help="deploy bundle (actor.npz from `ilcsan export`)")
-    parser.add_argument("--episodes", type=int, default=10, help="deterministic episodes (default 10, the paper's)")
-    parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode (default 0)")
-    parser.add_argument("--task", help="task (default: the bundle's)")
-    parser.add_argument("--fixed-point", action="store_true",
-                        help="Loihi 2's bit-accurate fixed-point models (default: floating point)")
-    parser.add_argument("--check", type=int, default=0, metavar="N",
-                        help="compare the first N actions with the bundle's numpy runtime: largest, median and "
-                             "90th-percentile error (default 0: no check)")
-    parser.add_argument("--json", help="also write the results to this JSON file")
     parser.add_argument("--engine", choices=ENGINES, default="lava",
                         help="lava (default); mirror: the same network with Lava's rules simulated in numpy "
                              "(ilcsan.deploy.lava.plan.simulate, equal to Lava in the tests; fast, no Lava needed); "
@@ -113,8 +105,7 @@ def run(args: argparse.Namespace) -> dict:
     from ...rl.tasks import make_env
 
     path = Path(args.bundle)
-    if args.episodes < 1 or args.check < 0:
-        raise UserError("--episodes must be at least 1 and --check at least 0")
+    check_run_options(args)
     actor = DeployedActor.load(path)
     reference = DeployedActor.load(path)
     task = args.task or str(actor.meta["task"])
