@@ -173,3 +173,32 @@ def test_the_closed_loop_command_plays_the_mirror_like_the_runtime(tmp_path, cap
     assert main([str(tmp_path / "broken.npz"), "--engine", "mirror", "--episodes", "1"]) == 2
     error = capsys.readouterr().err.strip()
     assert error.startswith("error: ") and "\n" not in error
+
+
+def test_a_lava_run_cut_short_keeps_its_episodes_and_its_check(tmp_path, monkeypatch, capsys):
+    """The ``--json`` file holds every finished episode when a later one is interrupted, and the ``--check`` line is
+    printed once, as soon as its N actions are compared, not only at the end."""
+    import ilcsan.rl.tasks as tasks
+    from ilcsan.deploy.lava.__main__ import main
+
+    bundle = export_npz(random_policy("ilc-san", hidden=(32,)), tmp_path / "actor.npz")
+    made = []
+
+    def make_env_then_interrupt(task, seed):
+        if len(made) == 2:
+            raise KeyboardInterrupt
+        made.append(seed)
+        return real_make_env(task, seed=seed)
+
+    real_make_env = tasks.make_env
+    monkeypatch.setattr(tasks, "make_env", make_env_then_interrupt)
+    out = tmp_path / "run.json"
+    with pytest.raises(KeyboardInterrupt):
+        main([str(bundle), "--engine", "mirror", "--episodes", "5", "--seed", "3", "--check", "5", "--json", str(out)])
+    result = json.loads(out.read_text())
+    assert made == [3, 4] and result["episodes_done"] == 2 and not result["finished"]
+    assert len(result["returns"]) == len(result["lengths"]) == 2 and result["checked_actions"] == 5
+    printed = capsys.readouterr().out.splitlines()
+    check_lines = [number for number, line in enumerate(printed) if line.startswith("largest action error")]
+    assert len(check_lines) == 1 and printed[check_lines[0] - 1].startswith("episode 1/5")
+    assert not (tmp_path / "run.json.partial").exists()

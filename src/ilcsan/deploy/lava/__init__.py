@@ -45,7 +45,9 @@ def run_options() -> argparse.ArgumentParser:
     parser.add_argument("--check", type=int, default=0, metavar="N",
                         help="compare the first N actions with the bundle's numpy runtime: largest, median and "
                              "90th-percentile error (default 0: no check)")
-    parser.add_argument("--json", help="also write the results to this JSON file")
+    parser.add_argument("--json", metavar="FILE",
+                        help="also write the results to this JSON file, rewritten after every episode "
+                             "(\"finished\": false until the last)")
     return parser
 
 

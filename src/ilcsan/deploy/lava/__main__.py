@@ -101,18 +101,49 @@ class _NumpyEngine:
         pass
 
 
+def _write_json(result: dict, target: Path) -> None:
+    """Replace ``target`` with ``result`` in one step (a file beside it, then a rename)."""
+    partial = target.with_name(target.name + ".partial")
+    partial.write_text(json.dumps(result, indent=2))
+    partial.replace(target)
+
+
+def _check_line(result: dict) -> str:
+    return (f"largest action error against the numpy runtime over {result['checked_actions']} actions: "
+            f"{result['max_action_error']:.3g} (median {result['median_action_error']:.3g}, 90th percentile "
+            f"{result['p90_action_error']:.3g}; {result['actions_off']} off by more than {CHECK_TOLERANCE:g})")
+
+
+def _summary(args: argparse.Namespace, task: str, returns: list[float], lengths: list[int], seconds: list[float],
+             errors: list[float]) -> dict:
+    """The results so far: per-episode returns, lengths and times, and the action check's statistics."""
+    mode = "numpy runtime" if args.engine == "numpy" else \
+        ("fixed_pt" if args.fixed_point else "floating_pt") + (", numpy mirror" if args.engine == "mirror" else "")
+    return {"bundle": str(args.bundle), "task": task, "mode": mode,
+            "episodes_done": len(returns), "episodes": args.episodes, "finished": len(returns) == args.episodes,
+            "returns": returns, "lengths": lengths, "episode_seconds": seconds,
+            "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
+            "checked_actions": len(errors), "max_action_error": max(errors) if errors else None,
+            "median_action_error": float(np.median(errors)) if errors else None,
+            "p90_action_error": float(np.percentile(errors, 90)) if errors else None,
+            "actions_off": sum(error > CHECK_TOLERANCE for error in errors)}
+
+
 def run(args: argparse.Namespace) -> dict:
+    """Play ``args.episodes`` episodes. After each one, the results so far are written to ``--json`` (atomically,
+    ``finished`` false until the last), so a run cut short keeps its episodes; the ``--check`` line is printed as soon
+    as its N actions are compared (or after the last episode, when the episodes visit fewer)."""
     from ...rl.tasks import make_env
 
-    path = Path(args.bundle)
     check_run_options(args)
-    actor = DeployedActor.load(path)
-    reference = DeployedActor.load(path)
+    actor = DeployedActor.load(Path(args.bundle))
+    reference = DeployedActor.load(Path(args.bundle))
     task = args.task or str(actor.meta["task"])
     start = time.perf_counter()
     engine = (_NumpyEngine(actor) if args.engine == "numpy" else _MirrorEngine(args, actor, reference, task)
               if args.engine == "mirror" else _lava_actor(args, actor, reference, task))
     returns, lengths, seconds, errors = [], [], [], []
+    check_printed = False
     try:
         for episode in range(args.episodes):
             env = make_env(task, seed=args.seed + episode)
@@ -130,20 +161,17 @@ def run(args: argparse.Namespace) -> dict:
             seconds.append(time.perf_counter() - began)
             print(f"episode {episode + 1}/{args.episodes}: return {total:.1f}, {steps} steps, "
                   f"{seconds[-1]:.0f} s ({seconds[-1] / steps * 1e3:.0f} ms per action)", flush=True)
+            result = _summary(args, task, returns, lengths, seconds, errors)
+            result["wall_seconds"] = time.perf_counter() - start
+            if getattr(engine, "fixed", None) is not None:
+                result["worst_weight_error"] = engine.fixed.worst_weight_error
+            if errors and not check_printed and (len(errors) == args.check or result["finished"]):
+                print(_check_line(result), flush=True)
+                check_printed = True
+            if args.json:
+                _write_json(result, Path(args.json))
     finally:
         engine.close()
-    mode = "numpy runtime" if args.engine == "numpy" else \
-        ("fixed_pt" if args.fixed_point else "floating_pt") + (", numpy mirror" if args.engine == "mirror" else "")
-    result = {"bundle": str(path), "task": task, "mode": mode,
-              "returns": returns, "lengths": lengths, "episode_seconds": seconds,
-              "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
-              "checked_actions": len(errors), "max_action_error": max(errors) if errors else None,
-              "median_action_error": float(np.median(errors)) if errors else None,
-              "p90_action_error": float(np.percentile(errors, 90)) if errors else None,
-              "actions_off": sum(error > CHECK_TOLERANCE for error in errors),
-              "wall_seconds": time.perf_counter() - start}
-    if getattr(engine, "fixed", None) is not None:
-        result["worst_weight_error"] = engine.fixed.worst_weight_error
     return result
 
 
@@ -156,15 +184,6 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USER_ERROR
     print(f"{result['task']} ({result['mode']}), {len(result['returns'])} episodes: average return "
           f"{result['mean_return']:.1f} ± {result['std_return']:.1f}, average length {np.mean(result['lengths']):.0f}")
-    if result["max_action_error"] is not None:
-        print(f"largest action error against the numpy runtime over {result['checked_actions']} actions: "
-              f"{result['max_action_error']:.3g} (median {result['median_action_error']:.3g}, 90th percentile "
-              f"{result['p90_action_error']:.3g}; {result['actions_off']} off by more than {CHECK_TOLERANCE:g})")
-    if args.json:
-        target = Path(args.json)
-        partial = target.with_name(target.name + ".partial")
-        partial.write_text(json.dumps(result, indent=2))
-        partial.replace(target)
     return 0
 
 
