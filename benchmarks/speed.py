@@ -1,8 +1,8 @@
 """Training speed, measured side by side in one run: prints Markdown tables (and writes them with --out).
 
 What it measures, on this machine, in this order:
-  1. the CPU, the float32 GEMM peak (2048² matmul) and each matmul path's GFLOP/s on a run's own products
-     (MKL through aten, oneDNN, bf16), one thread;
+  1. the CPU, the float32 GEMM peak (2048² matmul) and each matmul path's GFLOP/s on a run's own products, each
+     as often as a training step computes it (MKL through aten, oneDNN, bf16), one thread;
   2. for each task and for 1 and 2 torch threads, environment steps per second including TD3 updates: ILC-SAN
      with the reference engine (Algorithm 1's time-step loop, eager, about the authors' code), the fast engine
      eager, the update compiled as one program (float32 on the path the run chooses, and bf16); DAN eager and
@@ -253,20 +253,22 @@ def cpu_model() -> str:
 
 
 def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[str, float]:
-    """GFLOP/s of every matmul path on the products of a run of ``preset`` on ``task`` (one thread): each path on
-    all of them (bf16 casting its operands in the call, as eager runs do), and "bf16 per product" as a compiled
-    bf16 run computes them (bfloat16 with the casts fused where that is faster, float32 elsewhere)."""
-    from ilcsan.compute.matmul import MATMUL_PATHS, gaining_products, measure_paths, product_times
+    """GFLOP/s of every matmul path on the products of a run of ``preset`` on ``task`` (one thread), each product
+    weighted by how often a training step computes it (``run_products``): each path on all of them (bf16 casting its
+    operands in the call, as eager runs do), and "bf16 per product" as a compiled bf16 run computes them (bfloat16
+    with the casts fused where that is faster, float32 elsewhere)."""
+    from ilcsan.compute.matmul import MATMUL_PATHS, gaining_products, measure_paths, product_flops, product_times
     from ilcsan.rl.matmul_choice import run_products
 
     torch.set_num_threads(1)
     config = RunConfig(task=task, seeds=seeds, actor=actor_config(preset))
     products = run_products(config, *TASK_SIZES[task])
-    speeds = measure_paths(products, paths=MATMUL_PATHS, seconds=0.5)
+    speeds = measure_paths(products, paths=MATMUL_PATHS, seconds=0.02)
     times = product_times(products, fused_casts=True, seconds=0.02)
     bf16 = gaining_products(times)
-    seconds = sum(times[product][1 if product in bf16 else 0] for product in products)
-    speeds["bf16 per product"] = sum(2.0 * a[0] * a[1] * a[2] * w[1] for a, w in products) / seconds / 1e9
+    seconds = sum(count * times[product][1 if product in bf16 else 0] for product, count in products.items())
+    flops = sum(count * product_flops(product) for product, count in products.items())
+    speeds["bf16 per product"] = flops / seconds / 1e9
     return speeds
 
 
@@ -362,8 +364,9 @@ def main() -> None:
     thread_counts = [int(value) for value in args.threads.split(",")]
     peaks = {threads: gemm_peak(threads) for threads in sorted({1, *thread_counts})}
     emit(f"Machine: {cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; float32 GEMM peak "
-         f"{peaks[1]:.0f} GFLOP/s (1 thread, 2048²). Matmul paths on one ILC-SAN Hopper update's own products "
-         "(1 thread, GFLOP/s): " + ", ".join(f"{name} {value:.0f}" for name, value in paths.items()) + ".")
+         f"{peaks[1]:.0f} GFLOP/s (1 thread, 2048²). Matmul paths on an ILC-SAN Hopper training step's products, "
+         "each as often as a step computes it (1 thread, GFLOP/s): "
+         + ", ".join(f"{name} {value:.0f}" for name, value in paths.items()) + ".")
     emit()
     for task in args.tasks.split(","):
         for threads in thread_counts:

@@ -118,6 +118,47 @@ def test_the_fastest_measured_float32_path_is_chosen():
     assert set(speeds) == set(PATHS) and all(value > 0 for value in speeds.values())
 
 
+def test_paths_are_judged_by_the_time_a_step_spends_not_by_flops(monkeypatch):
+    """A product a step runs every time outweighs a large one it runs once per evaluation: with times where oneDNN
+    is 5x slower on acting's small product and 2x faster on the diagnostics' large one, unweighted totals pick oneDNN,
+    the per-step counts aten; the GFLOP/s are Σ count·flops / Σ count·time."""
+    import ilcsan.compute.matmul as matmul
+
+    small, large = layer_products(1, 5, 30, 8)[0], layer_products(1, 5000, 30, 8)[0]
+    fake = {small: (1e-6, 5e-6), large: (1e-2, 5e-3)}
+    monkeypatch.setattr(matmul, "onednn_available", lambda: True)
+    monkeypatch.setattr(matmul, "product_times", lambda products, fused_casts, seconds, paths: {
+        product: fake[product] for product in products})
+    once = measure_paths([small, large])
+    assert fastest_float32_path(once) == "onednn"
+    per_step = measure_paths({small: 1.0, large: 1e-4})
+    assert fastest_float32_path(per_step) == "aten"
+    flops = 2 * 5 * 30 * 8 * (1.0 + 1e-4 * 1000)
+    assert per_step["aten"] == pytest.approx(flops / (1e-6 + 1e-4 * 1e-2) / 1e9)
+    assert per_step["onednn"] == pytest.approx(flops / (5e-6 + 1e-4 * 5e-3) / 1e9)
+
+
+def test_run_products_counts_how_often_a_step_computes_each_product():
+    """Hand-counted for ILC-SAN on a 3-observation, 1-action task (pop-det encoder: 3·10 = 30 inputs, T = 5, one
+    hidden layer of 8, 10 output neurons), 2 seeds, batch 16, policy delay 2, evaluations of 4 episodes of at most
+    200 steps every 500 steps, twin critics of 12."""
+    config = RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
+                       actor=actor_config("ilc-san", hidden=(8,)),
+                       td3=TD3Config(batch_size=16, critic_hidden=(12,), policy_delay=2))
+    counts = run_products(config, 3, 1, episode_steps=200)
+    forward, grad_input, grad_weight = layer_products(2, 5 * 16, 30, 8)
+    assert counts[layer_products(2, 5, 30, 8)[0]] == 1.0  # acting, every step
+    assert counts[forward] == 1.0 + 0.5 and counts[grad_input] == counts[grad_weight] == 0.5  # target, actor update
+    assert counts[layer_products(2, 5 * 4, 30, 8)[0]] == pytest.approx(200 / 500)  # evaluation
+    assert counts[layer_products(2, 5 * 1000, 8, 10)[0]] == pytest.approx(1 / 500)  # diagnostics
+    twin_forward, twin_input, _ = layer_products(4, 16, 4, 12)
+    assert counts[twin_forward] == 2.0 and counts[twin_input] == 1.0  # critic loss and target critics
+    assert counts[layer_products(2, 16, 12, 1)[1]] == 0.5  # the actor loss through the first critics
+    # per actor layer 3 update products and 3 forward ones (acting, evaluation, diagnostics); per critic layer 3 of
+    # the twin critics and 3 of the first critics: nothing else
+    assert len(counts) == 2 * (3 + 3) + 2 * (3 + 3)
+
+
 def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
     lines = []
     config = RunConfig(task="Pendulum-v1", steps=10, eval_every=10, eval_episodes=1, threads=1,
@@ -149,9 +190,9 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
     from ilcsan.rl.matmul_choice import choose_matmul_path
 
     def measuring(fastest: str):
-        def choose(config, state_dim, action_dim):
+        def choose(config, state_dim, action_dim, episode_steps=None):
             if config.matmul == "bf16":
-                return choose_matmul_path(config, state_dim, action_dim)
+                return choose_matmul_path(config, state_dim, action_dim, episode_steps)
             return MatmulPath(fastest), {"path": fastest, "compiled": False, "gflops": {"aten": 1.0, "onednn": 1.0}}
         return choose
 

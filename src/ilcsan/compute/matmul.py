@@ -16,14 +16,15 @@ Every synaptic layer, critic layer and their gradients is one batched product ``
 A network is built with its :class:`MatmulPath`, an explicit object its layers keep (nothing global): each product's
 path is read when the product runs, so a compiled program bakes in the one it was traced with.
 :func:`measure_paths` times the float32 paths on a run's own shapes (forward and both backward products of every
-layer) and :func:`fastest_float32_path` picks the quicker; the two agree to float32 rounding (tested), eager and
-inside a compiled update program.
+layer), each weighted by how often a training step computes it, and :func:`fastest_float32_path` picks the quicker;
+the two agree to float32 rounding (tested), eager and inside a compiled update program.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections import Counter
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -137,17 +138,17 @@ def time_calls(calls: dict[str, Sequence[Callable[[], object]]], seconds: float)
     return best
 
 
-def product_times(products: Collection[Product], fused_casts: bool,
-                  seconds: float = 0.002) -> dict[Product, tuple[float, float]]:
-    """Each distinct product's (float32, bfloat16) time in seconds, float32 on ``aten``, timed as the run will
-    compute it (:func:`product_call`), ~``seconds`` per product and path; the products worth computing in bfloat16 are
-    those with ``bf16 <= BF16_GAIN * float32`` (:func:`gaining_products`)."""
+def product_times(products: Collection[Product], fused_casts: bool, seconds: float = 0.002,
+                  paths: Sequence[str] = ("aten", "bf16")) -> dict[Product, tuple[float, ...]]:
+    """Each distinct product's time in seconds on each of ``paths`` (default: float32 on ``aten``, then bfloat16), in
+    that order, timed as the run will compute it (:func:`product_call`), ~``seconds`` per product and path; the
+    products worth computing in bfloat16 are those with ``bf16 <= BF16_GAIN * float32`` (:func:`gaining_products`)."""
     generator = torch.Generator().manual_seed(0)
     times = {}
     for a_shape, w_shape in dict.fromkeys(products):
         a, w = torch.randn(a_shape, generator=generator), torch.randn(w_shape, generator=generator)
-        best = time_calls({path: [product_call(a, w, path, fused_casts)] for path in ("aten", "bf16")}, seconds)
-        times[(tuple(a_shape), tuple(w_shape))] = (best["aten"], best["bf16"])
+        best = time_calls({path: [product_call(a, w, path, fused_casts)] for path in paths}, seconds)
+        times[(tuple(a_shape), tuple(w_shape))] = tuple(best[path] for path in paths)
     return times
 
 
@@ -164,16 +165,25 @@ def layer_products(ensemble: int, rows: int, d_in: int, d_out: int) -> list[Prod
             ((ensemble, d_out, rows), (ensemble, d_in, rows))]
 
 
-def measure_paths(products: Sequence[Product], paths: Sequence[str] = FLOAT32_PATHS,
-                  seconds: float = 0.15) -> dict[str, float]:
-    """GFLOP/s of each path on ``products`` ((a shape, w shape) pairs run back to back), ~``seconds`` each
-    (:func:`time_calls`)."""
-    generator = torch.Generator().manual_seed(0)
-    operands = [(torch.randn(a, generator=generator), torch.randn(w, generator=generator)) for a, w in products]
-    flops = sum(2.0 * a[0] * a[1] * a[2] * w[1] for a, w in products)
+def measure_paths(products: Mapping[Product, float] | Sequence[Product], paths: Sequence[str] = FLOAT32_PATHS,
+                  seconds: float = 0.003) -> dict[str, float]:
+    """GFLOP/s of each path on ``products`` as a run repeats them: with a mapping, each product counts as often as its
+    value says (:func:`~ilcsan.rl.matmul_choice.run_products`: times per environment step), a sequence counts each
+    entry once. Each distinct product is timed on every path in alternation (:func:`product_times`, ~``seconds``
+    each), so a path is judged by Σ count × time: the small products a step runs every time (one action: T rows) weigh
+    as they do in training, not as little as their share of the flops."""
+    counts = products if isinstance(products, Mapping) else Counter((tuple(a), tuple(w)) for a, w in products)
     usable = [path for path in paths if path != "onednn" or onednn_available()]
-    best = time_calls({path: [product_call(a, w, path) for a, w in operands] for path in usable}, seconds)
-    return {path: flops / elapsed / 1e9 for path, elapsed in best.items()}
+    times = product_times(counts, fused_casts=False, seconds=seconds, paths=usable)
+    flops = sum(count * product_flops(product) for product, count in counts.items())
+    return {path: flops / sum(count * times[product][index] for product, count in counts.items()) / 1e9
+            for index, path in enumerate(usable)}
+
+
+def product_flops(product: Product) -> float:
+    """Floating-point operations of one product ``a @ wᵀ``: 2 · K · R · in · out."""
+    (members, rows, d_in), (_, d_out, _) = product
+    return 2.0 * members * rows * d_in * d_out
 
 
 def fastest_float32_path(speeds: dict[str, float]) -> str:

@@ -23,40 +23,61 @@ from ..config import PROXY_HIDDEN, SPIKING_ENCODERS, RunConfig
 from ..snn.diagnostics import DIAGNOSTIC_STATES
 
 
-def run_products(config: RunConfig, state_dim: int, action_dim: int) -> list[Product]:
-    """The (a, w) shapes of the products of this run (:data:`~ilcsan.compute.matmul.Product`), repeated as a step
-    repeats them: for each actor layer the three products of an update over T·B rows and the forward product of
-    acting (T rows), of evaluation (T·E rows), of the diagnostics at each evaluation (T·1000 rows) and, with Proxy
-    Target, of the proxy's regression targets (T·B·K_proxy rows), T being 1 for DAN and for a first layer whose
-    input is not a spike train; the three products of every
-    critic layer for the 2K critics of the critic loss and for the K first critics of the actor loss; and with
-    Proxy Target, those of the proxy's layers."""
+def run_products(config: RunConfig, state_dim: int, action_dim: int,
+                 episode_steps: int | None = None) -> dict[Product, float]:
+    """The (a, w) shapes of the products of this run (:data:`~ilcsan.compute.matmul.Product`), each with how many
+    times the run computes it per environment step once TD3 updates (one update a step; ``update_every`` steps, then
+    as many updates). For each actor layer: acting's forward product over T rows (every step); an update's products
+    over T·B rows: the forward of the spiking target actor (every update, unless Proxy Target replaces it) and the
+    forward and both backward products of the actor update (every ``policy_delay``-th); evaluation's forward over T·E
+    rows (at most ``episode_steps`` steps every ``eval_every``; 1000, Gymnasium's MuJoCo limit, when not given); the
+    diagnostics' over T·1000 rows (once per evaluation); with Proxy Target, the actor's forward over T·B·K_proxy rows
+    for the proxy's regression targets (every update). T is 1 for DAN and for a first layer whose input is not a spike
+    train. For every critic layer: the 2K critics' three products (the critic loss) and their forward again (the
+    target critics), every update; the K first critics' three products for the actor loss (every ``policy_delay``-th
+    update). With Proxy Target, the proxy's three products K_proxy times an update and its forward once more (as π')."""
     seeds, td3, actor = len(config.seeds), config.td3, config.actor
     batch, proxy = td3.batch_size, td3.target_actor == "proxy"
+    delayed = 1.0 / td3.policy_delay
+    evaluations = 1.0 / config.eval_every
     timesteps = actor.timesteps if actor.network == "spiking" else 1
-    forward_rows = [1, config.eval_episodes, DIAGNOSTIC_STATES] + ([batch * td3.proxy_iterations] if proxy else [])
-    products = []
+    counts: dict[Product, float] = {}
+
+    def add(products: list[Product], times: float) -> None:
+        for product in products:
+            counts[product] = counts.get(product, 0.0) + times
+
+    forward_rows = [(1, 1.0), (config.eval_episodes, (episode_steps or 1000) * evaluations),
+                    (DIAGNOSTIC_STATES, evaluations)] + ([(batch * td3.proxy_iterations, 1.0)] if proxy else [])
     for index, (d_in, d_out) in enumerate(pairwise(actor.layer_sizes(state_dim, action_dim))):
         steps = timesteps if index > 0 or actor.encoder in SPIKING_ENCODERS else 1
-        products += layer_products(seeds, steps * batch, d_in, d_out)
-        products += [layer_products(seeds, steps * rows, d_in, d_out)[0] for rows in forward_rows]
-    critic = [state_dim + action_dim, *td3.critic_hidden, 1]
-    for members in (2 * seeds, seeds):
-        products += [p for d_in, d_out in pairwise(critic) for p in layer_products(members, batch, d_in, d_out)]
+        update = layer_products(seeds, steps * batch, d_in, d_out)
+        add(update, delayed)
+        add(update[:1], 0.0 if proxy else 1.0)
+        for rows, times in forward_rows:
+            add(layer_products(seeds, steps * rows, d_in, d_out)[:1], times)
+    for d_in, d_out in pairwise([state_dim + action_dim, *td3.critic_hidden, 1]):
+        twin = layer_products(2 * seeds, batch, d_in, d_out)
+        add(twin, 1.0)
+        add(twin[:1], 1.0)
+        add(layer_products(seeds, batch, d_in, d_out), delayed)
     if proxy:
-        sizes = [state_dim, *PROXY_HIDDEN, action_dim]
-        products += [p for d_in, d_out in pairwise(sizes) for p in layer_products(seeds, batch, d_in, d_out)]
-    return products
+        for d_in, d_out in pairwise([state_dim, *PROXY_HIDDEN, action_dim]):
+            fit = layer_products(seeds, batch, d_in, d_out)
+            add(fit, float(td3.proxy_iterations))
+            add(fit[:1], 1.0)
+    return counts
 
 
-def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> tuple[MatmulPath, dict]:
+def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int,
+                       episode_steps: int | None = None) -> tuple[MatmulPath, dict]:
     """The matmul path of the run's networks (:mod:`ilcsan.compute.matmul`) and what was chosen, for config.json and
     the start-up line. float32: the faster float32 path on the run's own products, measured now. bf16: bfloat16 for
     the products it computes faster, measured now as the run will compute them (casts fused when compiled), float32
     (``aten``) for the others."""
     if torch.device(config.device).type != "cpu":
         return MatmulPath("aten"), {"path": "aten", "gflops": {}}
-    products, compiled = run_products(config, state_dim, action_dim), config.compiles()
+    products, compiled = run_products(config, state_dim, action_dim, episode_steps), config.compiles()
     if config.matmul == "bf16":
         times = product_times(products, fused_casts=compiled)
         gaining = gaining_products(times)
@@ -65,7 +86,7 @@ def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int) -> tu
             "path": "bf16", "compiled": compiled, "gflops": {},
             "bf16_products": sorted([list(a), list(w)] for a, w in gaining), "products": len(times),
             "bf16_speedup": round(float32_seconds / bf16_seconds, 2) if gaining else None}
-    speeds = measure_paths(products, seconds=0.05)
+    speeds = measure_paths(products)
     path = fastest_float32_path(speeds)
     return MatmulPath(path), {"path": path, "compiled": compiled,
                               "gflops": {name: round(value, 1) for name, value in speeds.items()}}
@@ -103,4 +124,4 @@ def describe_matmul_choice(choice: dict) -> str:
     if not choice["gflops"]:
         return f"matmul: {choice['path']}"
     speeds = ", ".join(f"{name} {value:.0f}" for name, value in choice["gflops"].items())
-    return f"matmul: {choice['path']} (float32 GFLOP/s on this run's products: {speeds})"
+    return f"matmul: {choice['path']} (float32 GFLOP/s on this run's products as a step runs them: {speeds})"

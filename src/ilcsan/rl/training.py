@@ -70,7 +70,8 @@ class Trainer:
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
             kept = self._recorded_matmul_path() if resumable else None
-            matmul, self.matmul = kept or choose_matmul_path(config, state_dim, action_dim)
+            matmul, self.matmul = kept or choose_matmul_path(config, state_dim, action_dim,
+                                                             self.environments.episode_steps)
             log(describe_matmul_choice(self.matmul))
             self.agent = TD3Agent(config.actor, config.td3, state_dim, action_dim, self.environments.action_scale,
                                   self.environments.action_offset, config.seeds, config.device,
