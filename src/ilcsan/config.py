@@ -392,7 +392,8 @@ class RunConfig:
                                    f"({COMPILE_PAYS_AFTER_UPDATES['spiking']} for spiking actors, "
                                    f"{COMPILE_PAYS_AFTER_UPDATES['deep']} for DAN)", choices=COMPILE_MODES)
     matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
-                                     "matrix shapes, measured at start (printed, and kept in config.json); bf16: "
+                                     "matrix shapes, each as often as a training step computes it, measured at start "
+                                     "(printed, and kept in config.json); bf16: "
                                      "operands and products rounded to bfloat16 for the product shapes it computes "
                                      "faster on this CPU (AMX/AVX512-BF16), timed at start, float32 for the rest "
                                      "(TF32/bf16 on CUDA)", choices=MATMUL_CHOICES)
