@@ -17,7 +17,7 @@ import pytest
 
 from ilcsan.cli import main
 from ilcsan.errors import UserError
-from ilcsan.experiments.backends import RayBackend, ray_node_address, termination_as_ctrl_c
+from ilcsan.experiments.backends import LocalBackend, RayBackend, ray_node_address, termination_as_ctrl_c
 from ilcsan.experiments.coordinator import run_grid
 from ilcsan.experiments.estimate import estimate_hours, list_tables, row_step_cost
 from ilcsan.experiments.grid import GridOptions, expand_grid
@@ -313,7 +313,7 @@ class FlakyBackend:
         return run_job(job)
 
     def interrupt(self, handles):
-        pass
+        return []
 
     def close(self):
         pass
@@ -522,6 +522,63 @@ def test_killing_reproduce_leaves_no_worker_training_on(tmp_path, stop):
         with contextlib.suppress(ProcessLookupError):  # the coordinator and any worker it left: nothing trains on
             os.killpg(process.pid, signal.SIGKILL)
         process.wait(timeout=60)
+
+
+def _job_ignoring_ctrl_c(pid_file: Path) -> JobOutcome:
+    """A worker's job that never sees Ctrl-C (as the worker that trained on 300 s after `reproduce` was stopped):
+    writes its process id, then runs until killed."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    pid_file.write_text(str(os.getpid()))
+    while True:
+        time.sleep(0.05)
+
+
+def _job_stopping_at_ctrl_c(pid_file: Path) -> JobOutcome:
+    """A worker's job that ends at Ctrl-C, as training does."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    pid_file.write_text(str(os.getpid()))
+    try:
+        while True:
+            time.sleep(0.05)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _interrupt_once_running(backend: LocalBackend, pid_file: Path) -> tuple[list[str], float, int]:
+    handle = backend.submit(pid_file)
+    deadline = time.monotonic() + 120
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline and not handle.done(), "the job did not start in its worker"
+        time.sleep(0.05)
+    started = time.monotonic()
+    notes = backend.interrupt([handle])
+    return notes, time.monotonic() - started, int(pid_file.read_text())
+
+
+@pytest.mark.timeout(240)
+def test_a_worker_that_ignores_ctrl_c_is_killed_after_the_grace(tmp_path):
+    """Stopping a local grid never leaves a job training on: a worker whose job outlives Ctrl-C by the grace is
+    killed, and the coordinator is told which (it logs the note)."""
+    backend = LocalBackend(1, grace_seconds=2.0, target=_job_ignoring_ctrl_c)
+    notes, seconds, pid = _interrupt_once_running(backend, tmp_path / "worker.pid")
+    try:
+        assert 2.0 <= seconds < 60, f"interrupt took {seconds:.1f} s with a grace of 2 s"
+        assert notes == [f"1 job(s) still running 2 s after Ctrl-C: killed worker process(es) {pid}; "
+                         "each job resumes from its last checkpoint"]
+        deadline = time.monotonic() + 30
+        while _running(pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _running(pid), "the worker that ignored Ctrl-C is still running"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.timeout(240)
+def test_a_worker_that_stops_at_ctrl_c_is_not_killed(tmp_path):
+    backend = LocalBackend(1, grace_seconds=60.0, target=_job_stopping_at_ctrl_c)
+    notes, seconds, pid = _interrupt_once_running(backend, tmp_path / "worker.pid")
+    assert notes == [] and seconds < 30, f"{seconds:.1f} s, notes {notes}"
 
 
 def _wait_for(condition, what: str, process: subprocess.Popen, output: Path, seconds: float = 300) -> None:

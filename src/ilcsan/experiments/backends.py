@@ -6,7 +6,9 @@
                      dies (e.g. killed for memory) is replaced and its job resumed from its checkpoint,
                      up to :data:`~ilcsan.experiments.coordinator.CRASH_RETRIES` times. On Linux a worker
                      ends with its coordinator, however that dies (even ``kill -9``), instead of training
-                     on, orphaned.
+                     on, orphaned. Stopped (Ctrl-C, ``kill``), each job ends at its last checkpoint; a
+                     worker whose job still runs :data:`INTERRUPT_GRACE_SECONDS` later is killed (it
+                     resumes from that checkpoint).
 ``ray``              one Ray task per job with ``num_cpus=1``; Ray retries a task whose worker or node
                      dies (``max_retries``), and the retry resumes from the checkpoint. Without
                      ``--address`` a private single-machine Ray is started, listening on the loopback
@@ -27,7 +29,8 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Protocol
 
@@ -36,6 +39,10 @@ from ..errors import UserError
 from .jobs import Job, JobOutcome, run_job
 
 RAY_MAX_RETRIES = 3
+INTERRUPT_GRACE_SECONDS = 30.0
+"""How long a local job has, after Ctrl-C, to stop at its last checkpoint before its worker process is killed."""
+INTERRUPT_REPEAT_SECONDS = 10.0
+"""How often Ctrl-C is sent again, within the grace, to a worker whose job still runs."""
 RAY_INSTALL_HINT = 'pip install "ilcsan[ray]"'
 
 
@@ -97,16 +104,22 @@ class Backend(Protocol):
 
     def outcome(self, handle: Any) -> JobOutcome: ...
 
-    def interrupt(self, handles: Sequence[Any]) -> None: ...
+    def interrupt(self, handles: Sequence[Any]) -> list[str]:
+        """Stop the running jobs at their last checkpoints and close; returns what the coordinator should log."""
+        ...
 
     def close(self) -> None: ...
 
 
 class LocalBackend:
-    """A pool of spawned worker processes on this machine, one torch thread each."""
+    """A pool of spawned worker processes on this machine, one torch thread each. ``target(job)`` is what a worker
+    runs for a job (a test can give one that ignores Ctrl-C); ``grace_seconds``: see :meth:`interrupt`."""
 
-    def __init__(self, workers: int | None = None):
+    def __init__(self, workers: int | None = None, grace_seconds: float = INTERRUPT_GRACE_SECONDS,
+                 target: Callable[[Any], JobOutcome] | None = None):
         self.slots = workers or os.cpu_count() or 1
+        self.grace_seconds = grace_seconds
+        self.target = target or _run_job_stopped_by_ctrl_c
         self.executor: concurrent.futures.ProcessPoolExecutor | None = None
         self.broken = False
 
@@ -124,7 +137,7 @@ class LocalBackend:
         return self.executor
 
     def submit(self, job: Job) -> concurrent.futures.Future:
-        return self._pool().submit(_run_job_stopped_by_ctrl_c, job)
+        return self._pool().submit(self.target, job)
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[Any]:
         done, _ = concurrent.futures.wait(handles, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED)
@@ -139,16 +152,37 @@ class LocalBackend:
         except KeyboardInterrupt:
             return JobOutcome(error="interrupted")
 
-    def interrupt(self, handles: Sequence[Any]) -> None:
-        """Stop the running jobs as Ctrl-C would (each keeps its last checkpoint), then close the pool."""
+    def interrupt(self, handles: Sequence[Any]) -> list[str]:
+        """Stop the running jobs as Ctrl-C would (each keeps its last checkpoint), then close the pool.
+
+        Ctrl-C (SIGINT) goes to every worker, again every :data:`INTERRUPT_REPEAT_SECONDS` while a job runs; a job
+        still running ``grace_seconds`` after the first has its worker killed (SIGKILL), so that no worker ever trains
+        on after its coordinator has stopped. Nothing more is lost that way than with Ctrl-C: checkpoints are written
+        atomically, and the job resumes from its last one. Idle workers ignore Ctrl-C."""
         if self.executor is None:
-            return
+            return []
+        pending, notes = set(handles), []
+        deadline = time.monotonic() + self.grace_seconds
+        while pending and (left := deadline - time.monotonic()) > 0:
+            self._signal_workers(signal.SIGINT)
+            _, pending = concurrent.futures.wait(pending, timeout=min(left, INTERRUPT_REPEAT_SECONDS))
+        if pending:
+            killed = self._signal_workers(signal.SIGKILL)
+            notes.append(f"{len(pending)} job(s) still running {self.grace_seconds:g} s after Ctrl-C: killed worker "
+                         f"process(es) {', '.join(map(str, killed))}; each job resumes from its last checkpoint")
+        self.close()
+        return notes
+
+    def _signal_workers(self, number: int) -> list[int]:
+        """Send signal ``number`` to every live worker process of the pool; returns their process ids."""
         processes = getattr(self.executor, "_processes", None) or {}  # no public way to reach the workers
+        signalled = []
         for process in list(processes.values()):
             with contextlib.suppress(OSError, ValueError):
                 if process.pid is not None and process.is_alive():
-                    os.kill(process.pid, signal.SIGINT)
-        self.close()
+                    os.kill(process.pid, number)
+                    signalled.append(process.pid)
+        return signalled
 
     def close(self) -> None:
         if self.executor is not None:
@@ -205,7 +239,7 @@ class RayBackend:
             first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             return JobOutcome(error=f"Ray gave up on the job after {RAY_MAX_RETRIES} retries: {first[:300]}")
 
-    def interrupt(self, handles: Sequence[Any]) -> None:
+    def interrupt(self, handles: Sequence[Any]) -> list[str]:
         """Cancel the running tasks (a KeyboardInterrupt in each: they keep their last checkpoint)."""
         for handle in handles:
             with contextlib.suppress(Exception):
@@ -214,6 +248,7 @@ class RayBackend:
             with contextlib.suppress(Exception):
                 self.ray.wait(list(handles), num_returns=len(handles), timeout=30)
         self.close()
+        return []
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
