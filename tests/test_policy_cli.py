@@ -155,8 +155,8 @@ def test_export_npz_bundle_names_and_meta(trained_run, tmp_path, capsys):
     (["train", "--no-such-option"], ["unrecognized"]),
     (["evaluate", "/nonexistent/run"], ["does not exist"]),
     (["export", "/nonexistent/run", "--format", "onnx"], ["--format"]),
-    (["lava", "/nonexistent/run", "--episodes", "0"], ["--episodes must be at least 1"]),
-    (["lava", "/nonexistent/run", "--check", "some"], ["--check", "invalid int"]),
+    (["lava", "/nonexistent/run", "--episodes", "0"], ["--episodes", "'0' must be at least 1"]),
+    (["lava", "/nonexistent/run", "--check", "some"], ["--check", "not a whole number"]),
     (["frobnicate"], ["invalid choice"]),
 ])
 def test_user_mistakes_are_one_line_and_exit_2(capsys, tmp_path, argv, fragments):

@@ -11,6 +11,7 @@ import os
 import sys
 
 from .. import __version__
+from ..arguments import non_negative_int, positive_int
 from ..config import BACKENDS, COLLAPSE_RETURN, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TD3Config
 from ..deploy.lava import run_options
 from ..errors import TrainingDiverged, UserError
@@ -19,8 +20,6 @@ from . import commands, grid_commands
 from .options import (
     _add_actor_switches,
     _add_run_options,
-    _non_negative_int,
-    _positive_int,
     add_setting,
     choices_help,
     like_defaults,
@@ -84,8 +83,8 @@ def _add_evaluate_command(subparsers) -> None:
                                                "bundle in the numpy runtime (what a robot runs; int8 included).")
     evaluate.add_argument("run", help="run directory, policy.pt, checkpoint.pt, or a deploy bundle (.npz from "
                                       "`ilcsan export`)")
-    evaluate.add_argument("--episodes", type=_positive_int, default=10, help="episodes (paper: 10)")
-    evaluate.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed of the first episode")
+    evaluate.add_argument("--episodes", type=positive_int, default=10, help="episodes (paper: 10)")
+    evaluate.add_argument("--seed", type=non_negative_int, default=0, help="environment seed of the first episode")
     evaluate.add_argument("--task", help="evaluate on another task of the same shape (default: the training task)")
     evaluate.add_argument("--video", metavar="DIR", help="also write each episode to DIR/<task>-seed<S>.mp4 "
                           "(rendered off-screen; needs imageio-ffmpeg, which scripts/setup installs)")
@@ -121,7 +120,7 @@ def _add_reproduce_command(subparsers) -> None:
     reproduce.add_argument("--out", default="runs/reproduce", help="grid directory (default runs/reproduce)")
     reproduce.add_argument("--backend", default="local", help=choices_help(BACKENDS, "local"))
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
-    reproduce.add_argument("--workers", type=_positive_int, default=None, help="parallel runs (default: cores)")
+    reproduce.add_argument("--workers", type=positive_int, default=None, help="parallel runs (default: cores)")
     add_setting(reproduce, RunConfig, "device")
     add_setting(reproduce, RunConfig, "matmul")
     reproduce.add_argument("--dashboard", action="store_true",
@@ -155,8 +154,8 @@ def _add_energy_command(subparsers) -> None:
     energy = subparsers.add_parser("energy", help="firing rates, operation counts and energy per inference",
                                  description="Energy analysis of trained actors (Section V-F).")
     energy.add_argument("runs", nargs="+", help="run directories or policy.pt files")
-    energy.add_argument("--episodes", type=_positive_int, default=1, help="episodes to measure (paper: 1)")
-    energy.add_argument("--seed", type=_non_negative_int, default=0, help="environment seed")
+    energy.add_argument("--episodes", type=positive_int, default=1, help="episodes to measure (paper: 1)")
+    energy.add_argument("--seed", type=non_negative_int, default=0, help="environment seed")
     energy.add_argument("--json", action="store_true", help="print JSON instead of tables")
     energy.set_defaults(handler=grid_commands.cmd_energy)
 
@@ -189,9 +188,9 @@ def _add_demo_command(subparsers) -> None:
     demo = subparsers.add_parser("demo", help="train ILC-SAN briefly on a small task and plot its learning curve",
                                description="A short ILC-SAN run that shows the whole pipeline in minutes.")
     demo.add_argument("--task", default=commands.DEMO_TASK, help=f"task (default {commands.DEMO_TASK})")
-    demo.add_argument("--steps", type=_positive_int, default=commands.DEMO_STEPS,
+    demo.add_argument("--steps", type=positive_int, default=commands.DEMO_STEPS,
                       help=f"steps (default {commands.DEMO_STEPS})")
-    demo.add_argument("--seed", type=_non_negative_int, default=0, help="seed of the run (default 0)")
+    demo.add_argument("--seed", type=non_negative_int, default=0, help="seed of the run (default 0)")
     demo.add_argument("--out", default="runs/demo", help="run directory (default runs/demo)")
     add_setting(demo, RunConfig, "threads")
     demo.set_defaults(handler=commands.cmd_demo)

@@ -119,9 +119,8 @@ def cmd_lava(args: argparse.Namespace) -> int:
     import tempfile
 
     from ..deploy import export
-    from ..deploy.lava import check_run_options, lava_python, run_arguments
+    from ..deploy.lava import lava_python, run_arguments
 
-    check_run_options(args)
     python = lava_python()
     with tempfile.TemporaryDirectory(prefix="ilcsan-lava-") as folder:
         bundle = Path(args.run)

@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ..arguments import int_at_least, positive_int
 from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of, setting_type
 from ..errors import UserError
 
@@ -44,25 +45,6 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     return tuple(seeds)
 
 
-def _int_at_least(minimum: int):
-    """An argparse type: a whole number (underscores allowed) of at least ``minimum``."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text.replace("_", ""))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{text!r} must be at least {minimum}")
-        return value
-
-    return parse
-
-
-_positive_int = _int_at_least(1)
-_non_negative_int = _int_at_least(0)
-
-
 def _finite_float(text: str) -> float:
     try:
         value = float(text)
@@ -78,7 +60,7 @@ def _argparse_type(config_class: type, setting_field) -> Any:
     """The argparse type of a field: whole numbers of at least its minimum, finite floats, strings as given."""
     kind = setting_type(config_class, setting_field)
     if kind is int:
-        return _int_at_least(setting_field.metadata.get("minimum") or 0)
+        return int_at_least(setting_field.metadata.get("minimum") or 0)
     if kind is float:
         return _finite_float
     return None
@@ -126,7 +108,7 @@ def actor_switches() -> list[tuple[str, tuple[str, ...], dict[str, Any]]]:
         meta = item.metadata
         for part in meta["switches"]:
             switches.append(("--" + part.flag, (), {
-                "dest": part.flag.replace("-", "_"), "type": _positive_int,
+                "dest": part.flag.replace("-", "_"), "type": positive_int,
                 "help": _help(part.help, f"paper: {part.default_of(item.default)}")}))
         if not meta["switches"]:
             is_preset = item.name == "preset"

@@ -11,6 +11,8 @@ import argparse
 import os
 from pathlib import Path
 
+from ...arguments import non_negative_int, positive_int
+
 LAVA_PYTHON_VARIABLE = "ILCSAN_LAVA_PYTHON"
 SETUP = "bash scripts/setup-lava"
 INSTALLED_STAMP = ".ilcsan-installed"
@@ -36,27 +38,21 @@ def run_options() -> argparse.ArgumentParser:
     """The options of a closed-loop run, as a parent parser: declared once for ``ilcsan lava`` and for
     ``python -m ilcsan.deploy.lava`` (which ``ilcsan lava`` calls with :func:`run_arguments`)."""
     parser = argparse.ArgumentParser(add_help=False)
-    parser.add_argument("--episodes", type=int, default=10, help="deterministic episodes (default 10, the paper's)")
-    parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode (default 0)")
+    parser.add_argument("--episodes", type=positive_int, default=10,
+                        help="deterministic episodes (default 10, the paper's)")
+    parser.add_argument("--seed", type=non_negative_int, default=0,
+                        help="environment seed of the first episode (default 0)")
     parser.add_argument("--task", help="task (default: the actor's)")
     parser.add_argument("--fixed-point", action="store_true",
                         help="Loihi 2's bit-accurate fixed-point models: 8-bit weights with exponents, 24-bit "
                              "states (default: floating point)")
-    parser.add_argument("--check", type=int, default=0, metavar="N",
+    parser.add_argument("--check", type=non_negative_int, default=0, metavar="N",
                         help="compare the first N actions with the bundle's numpy runtime: largest, median and "
                              "90th-percentile error (default 0: no check)")
     parser.add_argument("--json", metavar="FILE",
                         help="also write the results to this JSON file, rewritten after every episode "
                              "(\"finished\": false until the last)")
     return parser
-
-
-def check_run_options(args: argparse.Namespace) -> None:
-    """One line for counts out of range (before anything is exported or started)."""
-    from ..runtime.errors import UserError
-
-    if args.episodes < 1 or args.seed < 0 or args.check < 0:
-        raise UserError("--episodes must be at least 1, --seed and --check at least 0")
 
 
 def run_arguments(args: argparse.Namespace) -> list[str]:

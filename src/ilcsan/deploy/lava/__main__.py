@@ -19,7 +19,7 @@ import numpy as np
 
 from ..runtime import DeployedActor
 from ..runtime.errors import UserError
-from . import check_run_options, run_options
+from . import run_options
 from .plan import encoder_spikes, fix_plan, host_action, plan_actor, simulate
 
 EXIT_USER_ERROR = 2
@@ -135,7 +135,6 @@ def run(args: argparse.Namespace) -> dict:
     as its N actions are compared (or after the last episode, when the episodes visit fewer)."""
     from ...rl.tasks import make_env
 
-    check_run_options(args)
     actor = DeployedActor.load(Path(args.bundle))
     reference = DeployedActor.load(Path(args.bundle))
     task = args.task or str(actor.meta["task"])
