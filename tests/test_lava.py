@@ -118,6 +118,20 @@ def test_a_missing_lava_environment_is_one_line(monkeypatch, tmp_path):
         lava_python()
 
 
+@pytest.mark.parametrize("option, value, message", [
+    ("--episodes", "0", "'0' must be at least 1"),
+    ("--seed", "-1", "'-1' must be at least 0"),
+    ("--check", "some", "'some' is not a whole number"),
+])
+def test_the_runner_refuses_bad_counts_before_loading_anything(option, value, message, capsys):
+    from ilcsan.deploy.lava.__main__ import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["no-such-bundle.npz", option, value])
+    assert stop.value.code == 2
+    assert f"argument {option}: {message}" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------------- Lava itself
 def _lava_or_skip() -> Path:
     try:
