@@ -155,7 +155,6 @@ def keep_slots_busy(grid: Grid, backend: Backend, jobs: list[Job], progress: Pro
                 log(progress.line())
                 last_line = time.monotonic()
     except KeyboardInterrupt:
-        notes: list[str] = []
         try:
             log(f"stopping {len(running)} running job(s); each keeps its last checkpoint ...")
         finally:  # the workers stop even when the log cannot be written (its reader gone)
