@@ -76,6 +76,28 @@ EXPLORATION_PAPERS: dict[str, str] = {
 }
 """How the actor explores during training (``--exploration``), each with its paper; evaluation is deterministic. A
 registered method (:func:`ilcsan.rl.methods.register_exploration`) adds itself."""
+CONTACT_FORCES: dict[str, str] = {
+    "zeroed": "as the paper's simulator (mujoco-py 2.1) read them: zeros, in the state and in the reward terms "
+              "computed from them",
+    "simulated": "MuJoCo's computed forces (Gymnasium's default)",
+}
+"""``--contact-forces``: how a MuJoCo task's external contact forces ``cfrc_ext`` read (:mod:`ilcsan.rl.tasks`)."""
+CONTACT_FORCE_TASKS: tuple[str, ...] = ("Ant", "Humanoid", "HumanoidStandup")
+"""The paper's tasks whose state holds contact forces (84 values each); by short name they default to ``zeroed``."""
+
+
+RECORDED_BEFORE_CONTACT_FORCES = "simulated"
+"""A run recorded before ``contact_forces`` existed ran MuJoCo's computed forces."""
+
+
+def contact_forces_of(task: str, choice: str | None) -> str:
+    """The contact forces a run of ``task`` uses: ``choice`` if given, else ``zeroed`` for the paper's tasks of
+    :data:`CONTACT_FORCE_TASKS` named by short name (any case) and ``simulated`` for every other task."""
+    if choice is not None:
+        return choice
+    return "zeroed" if task.lower() in {name.lower() for name in CONTACT_FORCE_TASKS} else "simulated"
+
+
 NOISY_RETURN_REFERENCE: dict[str, float] = {
     "Ant": 6000.0, "HalfCheetah": 12000.0, "Hopper": 4000.0, "Walker2d": 6000.0, "Humanoid": 6000.0,
     "HumanoidStandup": 180000.0, "InvertedDoublePendulum": 10000.0, "BipedalWalker": 320.0,
@@ -174,7 +196,8 @@ def check_settings(config: Any) -> None:
     """Raise :class:`UserError` naming the flag for any field whose value its metadata does not allow."""
     for item in described_fields(type(config)):
         value, meta, name = getattr(config, item.name), item.metadata, flag_of(item)
-        if meta["choices"] is not None and value not in meta["choices"]:
+        optional = value is None and item.default is None  # None: another layer decides (the field's help says)
+        if meta["choices"] is not None and not optional and value not in meta["choices"]:
             raise UserError(f"{name} {value!r} is not one of: {', '.join(meta['choices'])}")
         if meta["minimum"] is not None and value is not None and value < meta["minimum"]:
             raise UserError(f"{name} must be at least {meta['minimum']}, got {value}")
@@ -382,6 +405,11 @@ class RunConfig:
     eval_episodes: int = setting(10, "episodes per evaluation", minimum=1)
     actor: ActorConfig = field(default_factory=ActorConfig)
     td3: TD3Config = field(default_factory=TD3Config)
+    contact_forces: str | None = setting(None, "a MuJoCo task's external contact forces. zeroed: as the paper's "
+                                               "simulator read them (mujoco-py 2.1): zeros in the state and in the "
+                                               "rewards computed from them; simulated: MuJoCo's. Default: zeroed for "
+                                               f"the paper's {', '.join(CONTACT_FORCE_TASKS)} by short name, "
+                                               "simulated otherwise", choices=tuple(CONTACT_FORCES))
     device: str = setting("cpu", "cpu, cuda or cuda:N")
     engine: str = setting("fast", "the spiking actor's forward pass: fast (layer-major) or reference (the literal "
                                   "time loop of Algorithm 1)", choices=ENGINES)
@@ -412,11 +440,15 @@ class RunConfig:
             return self.engine == "fast" and updates >= COMPILE_PAYS_AFTER_UPDATES[self.actor.network]
         return self.compile == "on"
 
+    def task_contact_forces(self) -> str:
+        """The contact forces this run's task uses (:func:`contact_forces_of`)."""
+        return contact_forces_of(self.task, self.contact_forces)
+
     def for_seed(self, seed: int) -> dict[str, Any]:
         """The config.json of one seed's run."""
         data = dataclasses.asdict(self)
         data.update(seed=seed, seeds=[seed], actor=self.actor.to_dict(), td3=self.td3.to_dict(),
-                    label=self.label or self.actor.preset)
+                    label=self.label or self.actor.preset, contact_forces=self.task_contact_forces())
         return data
 
     @classmethod
@@ -425,4 +457,5 @@ class RunConfig:
         values["actor"] = ActorConfig.from_dict(data["actor"])
         values["td3"] = TD3Config.from_dict(data["td3"])
         values["seeds"] = tuple(data.get("seeds", [data.get("seed", 0)]))
+        values.setdefault("contact_forces", RECORDED_BEFORE_CONTACT_FORCES)
         return cls(**values)

@@ -69,6 +69,7 @@ from ..deploy.runtime.synapses import GROUP_FC, INTRA_FC, fc_name
 from ..errors import UserError
 from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES, TASKS
 from ..rl import evaluation
+from ..rl.tasks import trained_contact_forces
 
 INTRA_SYNAPSES_PER_POPULATION = {  # (self, lateral) kept → synapses of one P×P block
     (True, True): lambda p: p * p, (True, False): lambda p: p, (False, True): lambda p: p * (p - 1),
@@ -266,7 +267,8 @@ def firing_rates(policy, task: str | None = None, episodes: int = 1, seed: int =
         tally.add(output)
         return output.action[0, 0].numpy()
 
-    evaluation.run_episodes(act, task or policy.task, episodes, seed)
+    evaluation.run_episodes(act, task or policy.task, episodes, seed,
+                            contact_forces=trained_contact_forces(policy))
     return tally.rates()
 
 

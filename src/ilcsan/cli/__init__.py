@@ -86,6 +86,8 @@ def _add_evaluate_command(subparsers) -> None:
     evaluate.add_argument("--episodes", type=positive_int, default=10, help="episodes (paper: 10)")
     evaluate.add_argument("--seed", type=non_negative_int, default=0, help="environment seed of the first episode")
     evaluate.add_argument("--task", help="evaluate on another task of the same shape (default: the training task)")
+    add_setting(evaluate, RunConfig, "contact_forces", default=None,
+                default_text="default: as in training; a run saved before this setting existed: simulated")
     evaluate.add_argument("--video", metavar="DIR", help="also write each episode to DIR/<task>-seed<S>.mp4 "
                           "(rendered off-screen; needs imageio-ffmpeg, which scripts/setup installs)")
     evaluate.set_defaults(handler=commands.cmd_evaluate)
@@ -121,6 +123,7 @@ def _add_reproduce_command(subparsers) -> None:
     reproduce.add_argument("--backend", default="local", help=choices_help(BACKENDS, "local"))
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
     reproduce.add_argument("--workers", type=positive_int, default=None, help="parallel runs (default: cores)")
+    add_setting(reproduce, RunConfig, "contact_forces")
     add_setting(reproduce, RunConfig, "device")
     add_setting(reproduce, RunConfig, "matmul")
     reproduce.add_argument("--dashboard", action="store_true",

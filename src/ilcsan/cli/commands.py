@@ -77,7 +77,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     task = args.task or actor.task
     video = Path(args.video) if args.video else None
     returns, lengths = evaluate_policy(actor, episodes=args.episodes, seed=args.seed, task=task, video=video,
-                                       progress=sys.stderr.isatty())
+                                       progress=sys.stderr.isatty(), contact_forces=args.contact_forces)
     episodes = f"{args.episodes} episode" + ("s" if args.episodes != 1 else "")
     print(f"{task} · {actor.label} · {episodes}: average return "
           f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "
@@ -153,13 +153,14 @@ def cmd_actors(args: argparse.Namespace) -> int:
 
 
 def cmd_tasks(args: argparse.Namespace) -> int:
-    from ..rl.tasks import VERSION_NOTE, describe_tasks
+    from ..rl.tasks import CONTACT_FORCES_NOTE, VERSION_NOTE, describe_tasks
 
     rows = describe_tasks()
     for row in rows:
         row["kwargs"] = ",".join(f"{k}={v}" for k, v in row["kwargs"].items()) or "-"
-    _print_table(rows, ["task", "gym_id", "N", "M", "paper_id", "kwargs", "note"])
+    _print_table(rows, ["task", "gym_id", "N", "M", "paper_id", "kwargs", "contact_forces", "note"])
     print(VERSION_NOTE)
+    print(CONTACT_FORCES_NOTE)
     print("Any other registered Gymnasium id with a Box action space works too, e.g. Pendulum-v1, and so does a task "
           "of your own as module:id (the module that registers it is imported first), e.g. my_robot.envs:Arm-v0.")
     return 0
@@ -198,7 +199,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     plot_curves(runs, picture)
     from ..rl.evaluation import random_policy_return
 
-    baseline = random_policy_return(config.task, episodes=5, seed=args.seed)
+    baseline = random_policy_return(config.task, episodes=5, seed=args.seed,
+                                    contact_forces=config.task_contact_forces())
     best, step = results[0]["best_return"], results[0]["best_step"]
     last = runs[0].returns[-1] if runs and runs[0].returns else None
     if best is not None:

@@ -10,7 +10,16 @@ from pathlib import Path
 from typing import Any
 
 from ..arguments import int_at_least, positive_int
-from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of, setting_type
+from ..config import (
+    ActorConfig,
+    RunConfig,
+    TD3Config,
+    actor_config,
+    check_settings,
+    contact_forces_of,
+    flag_of,
+    setting_type,
+)
 from ..errors import UserError
 
 # ------------------------------------------------------------------------------------ helpers
@@ -131,7 +140,7 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
             if options["dest"] != "preset"}
 
 
-RUN_SETTINGS = ("eval_every", "eval_episodes", "device", "engine", "threads", "compile", "matmul",
+RUN_SETTINGS = ("contact_forces", "eval_every", "eval_episodes", "device", "engine", "threads", "compile", "matmul",
                 "checkpoint_minutes")
 """The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
 TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size", "preaction_penalty", "target_actor",
@@ -213,6 +222,8 @@ def like_defaults(config: RunConfig) -> dict[str, Any]:
     values: dict[str, Any] = {"task": config.task, "steps": config.steps, "label": config.label,
                               "preset": config.actor.preset}
     values |= {name: getattr(config, name) for name in RUN_SETTINGS}
+    if config.contact_forces == contact_forces_of(config.task, None):
+        values["contact_forces"] = None  # the task's default: another --task gets its own
     values |= {name: getattr(config.td3, name) for name in TD3_SETTINGS}
     for item in dataclasses.fields(ActorConfig):
         value = getattr(config.actor, item.name)

@@ -55,6 +55,7 @@ def bundle_meta(policy: Policy) -> dict[str, Any]:
     config = policy.actor_config
     meta = {CONFIG_META_KEYS.get(name, name): value for name, value in config.to_dict().items()}
     meta.update(FIXED_META, intra_mask=INTRA_MASKS[config.intra]._asdict(), task=policy.task,
+                contact_forces=policy.contact_forces,
                 obs_mean=policy.obs_mean.tolist(), obs_std=policy.obs_std.tolist(), obs_clip=float(policy.obs_clip),
                 action_scale=policy.action_scale.tolist(), action_offset=policy.action_offset.tolist())
     return meta

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from ..compute.programs import CompiledPerShape
-from ..config import ActorConfig
+from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig
 from ..errors import UserError
 from ..files import safe_torch_load
 from ..rl.normalizer import RunningNormalizer
@@ -75,6 +75,8 @@ class Policy(HostSide):
     info: dict[str, Any]
     forward: Callable[[torch.Tensor], torch.Tensor] | None = None
     """What ``predict`` calls: the actor itself, or after :meth:`compile` its compiled programs."""
+    contact_forces: str = RECORDED_BEFORE_CONTACT_FORCES
+    """How its task's contact forces read in training (:data:`~ilcsan.config.CONTACT_FORCES`)."""
 
     def __post_init__(self) -> None:
         if self.forward is None:
@@ -153,7 +155,8 @@ def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor
             param.copy_(actor_params[name])
     actor.eval()
     return Policy(actor, config, data["task"], obs_mean, obs_std, obs_clip, scale, offset,
-                  {key: data.get(key) for key in ("step", "seed", "eval_return_mean")})
+                  {key: data.get(key) for key in ("step", "seed", "eval_return_mean")},
+                  contact_forces=data.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES)
 
 
 def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
@@ -167,12 +170,13 @@ def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
     if "action_scale" in data and "action_offset" in data:
         scale, offset = data["action_scale"], data["action_offset"]
     else:
-        env = make_env(config["task"])
+        env = make_env(config["task"], contact_forces=config.get("contact_forces", RECORDED_BEFORE_CONTACT_FORCES))
         scale, offset = action_bounds(env)
         env.close()
     return {"actor_config": config["actor"], "state_dim": data["state_dim"], "action_dim": data["action_dim"],
             "action_scale": scale, "action_offset": offset, "obs_mean": normalizer.mean[0],
             "obs_std": normalizer.std[0], "obs_clip": normalizer.clip, "task": config["task"],
+            "contact_forces": config.get("contact_forces"),
             "step": data["step"], "seed": config.get("seed")}
 
 

@@ -22,7 +22,7 @@ import torch
 
 from ..errors import UserError
 from ..snn.diagnostics import DIAGNOSTIC_STATES, diagnose_actor
-from .tasks import make_env, make_envs
+from .tasks import make_env, make_envs, trained_contact_forces
 
 DIAGNOSTIC_SALT = 7
 """Offset of the generators that draw the diagnostics' replayed states from a seed and step."""
@@ -86,21 +86,23 @@ def replay_diagnostics(agent, replay, normalizer, seeds: Sequence[int], step: in
 
 
 def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False,
-                 video: Path | None = None, progress: bool = False) -> tuple[list[float], list[int]]:
+                 video: Path | None = None, progress: bool = False,
+                 contact_forces: str | None = None) -> tuple[list[float], list[int]]:
     """Run ``episodes`` episodes of ``task`` with ``act(observation) -> action``, episode ``e`` seeded
     ``episode_seed(seed, e)`` (in lockstep, one environment per episode); returns the returns and lengths.
     ``batched``: ``act`` maps all episodes' observations (E, N) to their actions (E, M) in one call.
     ``video``: a folder that receives one MP4 per episode (:mod:`ilcsan.rl.video`); the episodes are the same.
     ``progress``: a bar on stderr over the episodes' steps (each episode counts its time limit; an episode that ends
-    sooner completes its share at the end)."""
+    sooner completes its share at the end). ``contact_forces``: see :func:`~ilcsan.rl.tasks.make_env`."""
     if video is None:
-        envs = make_envs(task, episodes)
+        envs = make_envs(task, episodes, contact_forces=contact_forces)
     else:
         from .video import EpisodeVideo, ffmpeg, prepare_rendering
 
         ffmpeg()  # a missing encoder is reported before any episode runs
         prepare_rendering()
-        envs = [EpisodeVideo(env, video, task) for env in make_envs(task, episodes, render_mode="rgb_array")]
+        envs = [EpisodeVideo(env, video, task) for env in make_envs(task, episodes, render_mode="rgb_array",
+                                                                      contact_forces=contact_forces)]
     try:
         def act_all(observations: np.ndarray) -> np.ndarray:
             if batched:
@@ -132,31 +134,36 @@ def _step_bar(task: str, envs: Sequence, enabled: bool):
 
 
 def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None = None, video: Path | None = None,
-                    progress: bool = False):
+                    progress: bool = False, contact_forces: str | None = None):
     """The deterministic policy's returns and lengths over ``episodes`` episodes (Section IV-A), seeded as
     the module docstring says (``seed`` is the first episode's seed); one call per step for all episodes, as the
     training loop evaluates. ``policy``: an ``ilcsan.Policy`` (its ``predict``) or a deploy bundle's numpy runtime,
     ``ilcsan.deploy.DeployedActor`` (its ``act``: the deployed network itself, int8 weights included).
     ``video``: also write each episode to ``video/<task>-seed<S>.mp4`` (:mod:`ilcsan.rl.video`); ``progress``: a
-    bar over the steps on stderr."""
+    bar over the steps on stderr. ``contact_forces``: as the policy was trained (:func:`trained_contact_forces`)
+    unless given."""
     task = task or policy.task
     if not task:
         raise UserError("the actor does not name its task; pass --task")
-    env = make_env(task)
+    contact_forces = contact_forces or trained_contact_forces(policy)
+    env = make_env(task, contact_forces=contact_forces)
     shape = env.observation_space.shape
     env.close()
     if shape != (policy.state_dim,):
         raise UserError(f"task {task!r} has observations of shape {shape}; the policy was trained for "
                         f"({policy.state_dim},)")
     act = policy.predict if hasattr(policy, "predict") else policy.act
-    return run_episodes(act, task, episodes, seed, batched=True, video=video, progress=progress)
+    return run_episodes(act, task, episodes, seed, batched=True, video=video, progress=progress,
+                        contact_forces=contact_forces)
 
 
-def random_policy_return(task: str, episodes: int = 5, seed: int = 0) -> float:
+
+def random_policy_return(task: str, episodes: int = 5, seed: int = 0, contact_forces: str | None = None) -> float:
     """Average return of uniformly random actions: the floor a trained actor must clear."""
-    env = make_env(task)
+    env = make_env(task, contact_forces=contact_forces)
     space = env.action_space
     env.close()
     rng = np.random.default_rng(seed)
-    returns, _ = run_episodes(lambda _obs: rng.uniform(space.low, space.high), task, episodes, seed)
+    returns, _ = run_episodes(lambda _obs: rng.uniform(space.low, space.high), task, episodes, seed,
+                              contact_forces=contact_forces)
     return float(np.mean(returns))

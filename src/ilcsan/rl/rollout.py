@@ -38,14 +38,15 @@ class Transition(NamedTuple):
 
 
 class TrainingEnvironments:
-    """K environments of ``task`` (one per seed), their current observations (K, N) and episode returns (K,)."""
+    """K environments of ``task`` (one per seed), their current observations (K, N) and episode returns (K,);
+    ``contact_forces``: see :func:`~ilcsan.rl.tasks.make_env`."""
 
-    def __init__(self, task: str, seeds: Sequence[int]):
+    def __init__(self, task: str, seeds: Sequence[int], contact_forces: str | None = None):
         self.task, self.seeds = task, tuple(seeds)
         self.envs: list = []
         try:
             for seed in self.seeds:
-                self.envs.append(make_env(task, seed))
+                self.envs.append(make_env(task, seed, contact_forces=contact_forces))
         except BaseException:
             self.close()
             raise

@@ -10,6 +10,15 @@ through as it is.
 The paper's facts (order, Gym id, N, M) come from :mod:`ilcsan.paper.published`; only the Gymnasium side
 (id, keyword arguments, a note) is declared here. Every failure to build a task, whatever Gymnasium or
 the simulator raises, becomes one :class:`UserError` naming the task, the cause and a fix.
+
+**Contact forces.** The paper's code ran gym 0.18 on mujoco-py 2.1, which never calls MuJoCo's
+``mj_rnePostConstraint``: the external contact forces ``cfrc_ext`` (and ``cacc``, ``cfrc_int``) stay zero. The states
+of Ant (84 of 111 values), Humanoid and HumanoidStandup (84 of 376) were therefore partly zeros, and so were the reward
+terms computed from those forces (Ant's contact cost, HumanoidStandup's impact cost). Gymnasium calls it after every
+step. ``contact_forces="zeroed"`` (:data:`ilcsan.config.CONTACT_FORCES`) restores the paper's simulator by zeroing
+those arrays right after each simulation step, before the task reads them; ``"simulated"`` keeps MuJoCo's forces. The
+default follows the task name (:func:`ilcsan.config.contact_forces_of`): the paper's tasks by short name whose state
+holds the forces are zeroed, everything else simulated.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import CONTACT_FORCE_TASKS, RECORDED_BEFORE_CONTACT_FORCES, contact_forces_of
 from ..errors import UserError
 from ..paper.published import PAPER_TASK_NAMES
 from ..paper.published import TASKS as PAPER_DIMS
@@ -49,12 +59,16 @@ class TaskSpec:
 
 _GYMNASIUM_SIDE: dict[str, dict[str, Any]] = {
     "Ant": {"kwargs": {"use_contact_forces": True},
-            "note": "contact forces on, as the paper's 111-dim state (mujoco-py zeroed them)"},
-    "Humanoid": {"note": "actions bounded at ±0.4"},
-    "HumanoidStandup": {"note": "actions bounded at ±0.4"},
+            "note": "use_contact_forces=True: the paper's 111 values (27 + 84 contact forces)"},
+    "Humanoid": {"note": "actions bounded at ±0.4; 84 of the 376 values are contact forces"},
+    "HumanoidStandup": {"note": "actions bounded at ±0.4; 84 of the 376 values are contact forces"},
     "BipedalWalker": {"gym_id": "BipedalWalker-v3", "note": "Box2D; episodes up to 1600 steps"},
 }
 """What differs from "the paper's task at -v4 without keyword arguments": ours, not the paper's."""
+
+CONTACT_FORCES_NOTE = ("contact_forces: zeroed reads MuJoCo's external contact forces as the paper's simulator did "
+                       "(mujoco-py 2.1 never computed them: zeros in the state and in the rewards made from them); "
+                       "--contact-forces simulated gives MuJoCo's; '-': the task's state and reward do not read them.")
 
 
 def _spec(name: str) -> TaskSpec:
@@ -204,9 +218,10 @@ def _build(name: str, gym_id: str, kwargs: dict[str, Any], seed: int | None):
     return env
 
 
-def make_env(name: str, seed: int | None = None, render_mode: str | None = None):
+def make_env(name: str, seed: int | None = None, render_mode: str | None = None, contact_forces: str | None = None):
     """A Gymnasium environment for ``name`` with a Box action space and a flat Box observation, reset once
-    (seeded if ``seed`` is given); ``render_mode`` is Gymnasium's (e.g. ``"rgb_array"`` for videos)."""
+    (seeded if ``seed`` is given); ``render_mode`` is Gymnasium's (e.g. ``"rgb_array"`` for videos);
+    ``contact_forces``: one of :data:`ilcsan.config.CONTACT_FORCES`, None for the task's default (module docstring)."""
     import gymnasium as gym
     from gymnasium import logger
 
@@ -215,6 +230,8 @@ def make_env(name: str, seed: int | None = None, render_mode: str | None = None)
         kwargs = {**kwargs, "render_mode": render_mode}
     logger.min_level = logger.ERROR if hasattr(logger, "ERROR") else 40
     env = _build(name, gym_id, kwargs, seed)
+    if contact_forces_of(name, contact_forces) == "zeroed":
+        _zero_contact_forces(env, name)  # a reset computes none of them: the first state is the paper's already
     if not isinstance(env.action_space, gym.spaces.Box):
         env.close()
         raise UserError(
@@ -229,13 +246,42 @@ def make_env(name: str, seed: int | None = None, render_mode: str | None = None)
     return env
 
 
-def make_envs(name: str, count: int, render_mode: str | None = None) -> list:
+ZEROED_ARRAYS = ("cacc", "cfrc_int", "cfrc_ext")
+"""The arrays only ``mj_rnePostConstraint`` computes, which the paper's mujoco-py never called: zeros there."""
+
+
+def _zero_contact_forces(env, name: str) -> None:
+    """Make ``env``'s simulation step leave :data:`ZEROED_ARRAYS` at zero, as the paper's simulator did, before the
+    task reads its state and reward from them. The dynamics are untouched: MuJoCo computes these arrays from the
+    state after a step and never reads them back."""
+    unwrapped = env.unwrapped
+    step = getattr(unwrapped, "_step_mujoco_simulation", None)
+    if step is None or not hasattr(unwrapped, "data"):
+        env.close()
+        raise UserError(f"--contact-forces zeroed needs a MuJoCo task of Gymnasium's MujocoEnv; {name!r} is not "
+                        "one: leave --contact-forces unset")
+
+    def step_with_zero_contact_forces(ctrl, n_frames):
+        step(ctrl, n_frames)
+        for array in ZEROED_ARRAYS:
+            getattr(unwrapped.data, array)[:] = 0.0
+
+    unwrapped._step_mujoco_simulation = step_with_zero_contact_forces
+
+
+def trained_contact_forces(policy) -> str:
+    """The contact forces ``policy`` (a Policy or a deploy bundle's actor) was trained with; one saved before the
+    setting existed trained with MuJoCo's (:data:`~ilcsan.config.RECORDED_BEFORE_CONTACT_FORCES`)."""
+    return getattr(policy, "contact_forces", None) or RECORDED_BEFORE_CONTACT_FORCES
+
+
+def make_envs(name: str, count: int, render_mode: str | None = None, contact_forces: str | None = None) -> list:
     """``count`` environments of ``name`` (see :func:`make_env`); if one cannot be built, those already built
     are closed before the error propagates."""
     envs: list = []
     try:
         for _ in range(count):
-            envs.append(make_env(name, render_mode=render_mode))
+            envs.append(make_env(name, render_mode=render_mode, contact_forces=contact_forces))
     except BaseException:
         for env in envs:
             with contextlib.suppress(Exception):
@@ -257,7 +303,8 @@ def describe_tasks() -> list[dict[str, Any]]:
     """Rows for ``ilcsan tasks``: the paper's tasks with the sizes the paper used (see :data:`VERSION_NOTE`)."""
     return [
         {"task": spec.name, "gym_id": spec.gym_id, "paper_id": spec.paper_id, "N": spec.state_dim,
-         "M": spec.action_dim, "kwargs": spec.kwargs, "note": spec.note}
+         "M": spec.action_dim, "kwargs": spec.kwargs, "note": spec.note,
+         "contact_forces": contact_forces_of(spec.name, None) if spec.name in CONTACT_FORCE_TASKS else "-"}
         for spec in TASK_SPECS.values()
     ]
 

@@ -60,12 +60,13 @@ class Trainer:
         self.locks: list = []
         self.callbacks = Callbacks()
         self.eval_envs: list = []
-        self.environments = TrainingEnvironments(config.task, config.seeds)  # the task builds: now write
+        contact_forces = config.task_contact_forces()
+        self.environments = TrainingEnvironments(config.task, config.seeds, contact_forces)  # the task builds: write
         try:
             apply_to_process(config.threads, config.matmul, config.device)  # once the task builds: a run that
             # cannot start changes nothing
             for _ in config.seeds:  # appended one seed at a time: close() finds every environment built
-                self.eval_envs.append(make_envs(config.task, config.eval_episodes))
+                self.eval_envs.append(make_envs(config.task, config.eval_episodes, contact_forces=contact_forces))
             state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
             check_memory(config, state_dim, action_dim)
             self.locks, resumable = open_for_training(self.directories, resume, log)
@@ -262,7 +263,8 @@ class Trainer:
         """The deployable actor of seed ``index``: weights, config, frozen normaliser, action bounds."""
         config, environments, normalizer = self.config, self.environments, self.normalizer
         return {
-            "task": config.task, "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
+            "task": config.task, "contact_forces": config.task_contact_forces(),
+            "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
             "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
             "action_offset": torch.as_tensor(environments.action_offset),
             "actor": slice_params(self.agent.actor, index, 1),

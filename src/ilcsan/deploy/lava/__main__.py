@@ -45,9 +45,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def _episode_observations(actor: DeployedActor, task: str, seed: int, count: int) -> list[np.ndarray]:
     """Up to ``count`` observations of one episode the numpy runtime plays (the fixed-point calibration)."""
-    from ...rl.tasks import make_env
+    from ...rl.tasks import make_env, trained_contact_forces
 
-    env = make_env(task, seed=seed)
+    env = make_env(task, seed=seed, contact_forces=trained_contact_forces(actor))
     observation, _ = env.reset(seed=seed)
     seen = [observation]
     for _ in range(10 * count):
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> dict:
     """Play ``args.episodes`` episodes. After each one, the results so far are written to ``--json`` (atomically,
     ``finished`` false until the last), so a run cut short keeps its episodes; the ``--check`` line is printed as soon
     as its N actions are compared (or after the last episode, when the episodes visit fewer)."""
-    from ...rl.tasks import make_env
+    from ...rl.tasks import make_env, trained_contact_forces
 
     actor = DeployedActor.load(Path(args.bundle))
     reference = DeployedActor.load(Path(args.bundle))
@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> dict:
     check_printed = False
     try:
         for episode in range(args.episodes):
-            env = make_env(task, seed=args.seed + episode)
+            env = make_env(task, seed=args.seed + episode, contact_forces=trained_contact_forces(actor))
             observation, _ = env.reset(seed=args.seed + episode)
             total, steps, began, done = 0.0, 0, time.perf_counter(), False
             while not done:

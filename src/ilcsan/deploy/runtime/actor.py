@@ -101,6 +101,12 @@ class DeployedActor(HostSide):
         return str(task) if task else None
 
     @property
+    def contact_forces(self) -> str | None:
+        """How the task's contact forces read in training (meta ``contact_forces``; None in an older bundle)."""
+        value = self.meta.get("contact_forces")
+        return str(value) if value else None
+
+    @property
     def label(self) -> str:
         """What the bundle holds, for messages: its preset and weight format."""
         return f"{self.meta.get('preset', 'actor')} · deploy bundle, {self.meta.get('weights', 'float32')} weights"
