@@ -198,11 +198,11 @@ def test_a_lava_run_cut_short_keeps_its_episodes_and_its_check(tmp_path, monkeyp
     bundle = export_npz(random_policy("ilc-san", hidden=(32,)), tmp_path / "actor.npz")
     made = []
 
-    def make_env_then_interrupt(task, seed):
+    def make_env_then_interrupt(task, seed, contact_forces=None):
         if len(made) == 2:
             raise KeyboardInterrupt
         made.append(seed)
-        return real_make_env(task, seed=seed)
+        return real_make_env(task, seed=seed, contact_forces=contact_forces)
 
     real_make_env = tasks.make_env
     monkeypatch.setattr(tasks, "make_env", make_env_then_interrupt)

@@ -181,12 +181,12 @@ def _stub_train(config, out, resume=False, progress=None, log=print):
     return [dict(result, best_return=-1.0, best_step=config.eval_every) for result in trainer.results()]
 
 
-def _one_action_episodes(act, task, episodes, seed=0, batched=False, video=None, progress=False):
+def _one_action_episodes(act, task, episodes, seed=0, batched=False, video=None, progress=False, contact_forces=None):
     """Stands in for evaluation.run_episodes: the real environment and one real action, not whole episodes (no video,
     no progress bar)."""
     from ilcsan.rl.tasks import make_env
 
-    env = make_env(task)
+    env = make_env(task, contact_forces=contact_forces)
     try:
         observation, _ = env.reset(seed=seed)
         action = np.asarray(act(observation[None])[0] if batched else act(observation))

@@ -133,7 +133,7 @@ def test_tasks_listing_says_which_versions_and_why(capsys):
 def test_environments_built_before_one_that_fails_are_closed(monkeypatch):
     built: list[Closable] = []
 
-    def make_third_fails(name, seed=None, render_mode=None):
+    def make_third_fails(name, seed=None, render_mode=None, contact_forces=None):
         if len(built) == 2:
             raise UserError(f"task {name!r} cannot be built here: out of file handles")
         built.append(Closable())
