@@ -8,13 +8,13 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+from spiking_policies import random_policy
 
 from ilcsan.cli import main
 from ilcsan.config import CONTACT_FORCE_TASKS, RunConfig, actor_config, contact_forces_of
 from ilcsan.deploy.bundle import bundle_meta
 from ilcsan.errors import UserError
 from ilcsan.rl.tasks import TASK_SPECS, make_env, trained_contact_forces
-from spiking_policies import random_policy
 
 CONTACT_VALUES = 84
 """cfrc_ext of the 14 bodies of Ant's and the humanoids' models, 6 values each, at the end of their states."""
