@@ -453,9 +453,12 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+        """The config of a saved config.json; recorded contact forces that are the task's default read as unset
+        (None), as a config made with that default holds them."""
         values = {key: value for key, value in data.items() if key in {f.name for f in dataclasses.fields(cls)}}
         values["actor"] = ActorConfig.from_dict(data["actor"])
         values["td3"] = TD3Config.from_dict(data["td3"])
         values["seeds"] = tuple(data.get("seeds", [data.get("seed", 0)]))
-        values.setdefault("contact_forces", RECORDED_BEFORE_CONTACT_FORCES)
+        recorded, task = data.get("contact_forces", RECORDED_BEFORE_CONTACT_FORCES), values.get("task", cls.task)
+        values["contact_forces"] = None if recorded == contact_forces_of(task, None) else recorded
         return cls(**values)

@@ -16,7 +16,6 @@ from ..config import (
     TD3Config,
     actor_config,
     check_settings,
-    contact_forces_of,
     flag_of,
     setting_type,
 )
@@ -221,9 +220,7 @@ def like_defaults(config: RunConfig) -> dict[str, Any]:
     ``ilcsan report`` places by its label, or with ``--table`` by its settings."""
     values: dict[str, Any] = {"task": config.task, "steps": config.steps, "label": config.label,
                               "preset": config.actor.preset}
-    values |= {name: getattr(config, name) for name in RUN_SETTINGS}
-    if config.contact_forces == contact_forces_of(config.task, None):
-        values["contact_forces"] = None  # the task's default: another --task gets its own
+    values |= {name: getattr(config, name) for name in RUN_SETTINGS}  # contact forces unset: another --task's own
     values |= {name: getattr(config.td3, name) for name in TD3_SETTINGS}
     for item in dataclasses.fields(ActorConfig):
         value = getattr(config.actor, item.name)
