@@ -10,15 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..arguments import int_at_least, positive_int
-from ..config import (
-    ActorConfig,
-    RunConfig,
-    TD3Config,
-    actor_config,
-    check_settings,
-    flag_of,
-    setting_type,
-)
+from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of, setting_type
 from ..errors import UserError
 
 # ------------------------------------------------------------------------------------ helpers
