@@ -202,3 +202,100 @@ def test_a_run_records_a_segment_when_it_starts_and_another_when_it_resumes(tmp_
         assert (segments[1]["matmul"], segments[1]["matmul_path"]) == ("bf16", "bf16")
         assert folder.config_object()["matmul_path"]["path"] == "aten"
         assert folder.result()["steps_done"] == 20
+
+
+# ---------------------------------------------------------------------------------------- the report
+AMD, INTEL = "AMD EPYC 9R14 96-Core Processor", "Intel(R) Xeon(R) Platinum 8488C"
+
+
+def segment(step: int = 0, cpu: str = AMD, commit: str = "a" * 40, dirty: bool = False, matmul: str = "float32",
+            path: str = "aten", torch_version: str = "2.13.0+cpu") -> dict:
+    """A segment as :func:`provenance.collect` writes it."""
+    return {"step": step, "started": "2026-12-01T10:00:00Z", "ilcsan": "0.1.0", "commit": commit, "dirty": dirty,
+            "python": "3.11.7", "torch": torch_version, "gymnasium": "1.4.0", "mujoco": "4.0.1", "cpu": cpu,
+            "cores": 2, "threads": 1, "device": "cpu", "matmul": matmul, "matmul_path": path}
+
+
+def intra_cell(root: Path, *runs: list[dict] | None) -> None:
+    """One run per entry in Table intra's Hopper I_intra cell (written as test_report writes runs), each with those
+    segments in its provenance.json (None: without one)."""
+    from test_report import intra_run
+
+    for seed, segments in enumerate(runs):
+        folder = intra_run(root, "Hopper", "intra", seed, [1000.0 + seed, 2000.0])
+        if segments is not None:
+            (folder / PROVENANCE).write_text(json.dumps({"segments": segments}))
+
+
+def report_notes(root: Path) -> tuple[list[str], str, str]:
+    """The provenance lines of report.md (without their bullets) and the whole report.md and report.tex."""
+    from ilcsan.analysis.report import write_report
+
+    paths = write_report(root)
+    markdown, latex = paths["markdown"].read_text(), paths["latex"].read_text()
+    lines = markdown.splitlines()
+    if "Provenance" not in markdown:
+        return [], markdown, latex
+    start = next(index for index, line in enumerate(lines) if line.startswith("Provenance ("))
+    notes = []
+    for line in lines[start + 2:]:
+        if not line.startswith("- "):
+            break
+        notes.append(line[2:])
+    return notes, markdown, latex
+
+
+def test_the_report_says_which_aspects_set_the_runs_of_a_cell_apart(tmp_path: Path) -> None:
+    b = "b" * 40
+    intra_cell(tmp_path, [segment()], [segment()], [segment(cpu=INTEL)], [segment(cpu=INTEL, commit=b)])
+    notes, markdown, latex = report_notes(tmp_path)
+    expected = ("Hopper · I_intra: runs differ in CPU (AMD EPYC 9R14 96-Core ×2, Intel Xeon Platinum 8488C ×2) and "
+                "code (aaaaaaa ×3, bbbbbbb ×1).")
+    assert notes == [expected.replace("_", "\\_")]
+    assert f"% {expected}" in latex.splitlines()
+
+
+def test_precision_library_versions_and_dirty_code_are_differences_too_and_each_segment_counts(tmp_path: Path) -> None:
+    resumed_elsewhere = [segment(), segment(step=200_000, cpu=INTEL, matmul="bf16", path="bf16")]
+    intra_cell(tmp_path, [segment(path="onednn", dirty=True)], [segment(torch_version="2.12.0")], resumed_elsewhere)
+    (note,) = report_notes(tmp_path)[0]
+    assert note == ("Hopper · I\\_intra: runs differ in CPU (AMD EPYC 9R14 96-Core ×3, Intel Xeon Platinum 8488C ×1), "
+                    "code (aaaaaaa ×2, aaaaaaa+dirty ×1), precision (float32 (aten) ×2, bf16 ×1, float32 (onednn) ×1) "
+                    "and torch (2.13.0+cpu ×2, 2.12.0 ×1).")
+
+
+def test_runs_that_agree_give_no_note_and_only_a_partly_recorded_cell_says_so(tmp_path: Path) -> None:
+    same = [segment(), segment(step=150_000)]  # resumed on the same machine and code: nothing to say
+    intra_cell(tmp_path / "agree", same, [segment()], [segment()])
+    notes, markdown, _ = report_notes(tmp_path / "agree")
+    assert notes == [] and "Provenance" not in markdown and "differ in" not in markdown
+    intra_cell(tmp_path / "older", None, None)  # runs of a version before provenance.json: no noise either
+    notes, markdown, _ = report_notes(tmp_path / "older")
+    assert notes == [] and "Provenance" not in markdown and "not recorded" not in markdown
+    intra_cell(tmp_path / "part", [segment()], None, [segment(cpu=INTEL)])
+    assert report_notes(tmp_path / "part")[0] == [
+        "Hopper · I\\_intra: runs differ in CPU (AMD EPYC 9R14 96-Core ×1, Intel Xeon Platinum 8488C ×1); "
+        "provenance not recorded for 1 of 3 runs."]
+    intra_cell(tmp_path / "part-same", [segment()], None)
+    assert report_notes(tmp_path / "part-same")[0] == ["Hopper · I\\_intra: provenance not recorded for 1 of 2 runs."]
+
+
+def test_a_damaged_provenance_file_counts_as_not_recorded_and_the_run_still_counts(tmp_path: Path) -> None:
+    from ilcsan.analysis.collect import collect_runs
+
+    intra_cell(tmp_path, [segment()], [segment()])
+    (tmp_path / "intra" / "Hopper" / "intra" / "seed1" / PROVENANCE).write_text("{not json")
+    runs = collect_runs(tmp_path)
+    assert len(runs) == 2 and [run.provenance is None for run in runs] == [False, True]
+    assert report_notes(tmp_path)[0] == ["Hopper · I\\_intra: provenance not recorded for 1 of 2 runs."]
+
+
+def test_the_differences_of_one_cell_leave_the_other_cells_alone(tmp_path: Path) -> None:
+    from test_report import intra_run
+
+    intra_cell(tmp_path, [segment()], [segment(cpu=INTEL)])
+    for seed in (0, 1):
+        folder = intra_run(tmp_path, "Hopper", "none", seed, [900.0, 950.0])
+        (folder / PROVENANCE).write_text(json.dumps({"segments": [segment(cpu=INTEL)]}))
+    notes = report_notes(tmp_path)[0]
+    assert len(notes) == 1 and notes[0].startswith("Hopper · I\\_intra: runs differ in CPU (")

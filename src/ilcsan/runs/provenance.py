@@ -136,19 +136,20 @@ def _precision(segment: Mapping[str, Any]) -> str:
     return text if device == "cpu" else f"{text} on {device}"
 
 
-def _libraries(segment: Mapping[str, Any]) -> str:
-    return ", ".join(f"{name} {segment.get(name)}" for name in ("python", *LIBRARIES))
-
-
 def _cpu(segment: Mapping[str, Any]) -> str:
     model = segment.get("cpu")
     return short_cpu(model) if isinstance(model, str) else "unknown"
 
 
+def _version(name: str) -> Callable[[Mapping[str, Any]], str]:
+    return lambda segment: "not installed" if segment.get(name) is None else str(segment.get(name))
+
+
 ASPECTS: dict[str, Callable[[Mapping[str, Any]], str]] = {
-    "CPU": _cpu, "code": _code, "precision": _precision, "libraries": _libraries}
+    "CPU": _cpu, "code": _code, "precision": _precision, "Python": _version("python"),
+    **{name: _version(name) for name in LIBRARIES}}
 """What :func:`differences` compares, each as the text a segment shows for it: the CPU model, the code (commit and
-dirty flag), the precision (``--matmul`` and the matmul path) and the versions of Python and the libraries."""
+dirty flag), the precision (``--matmul`` and the matmul path), and the versions of Python and each library."""
 
 
 def differences(runs: Sequence[Sequence[Mapping[str, Any]] | None]) -> str | None:
