@@ -11,7 +11,9 @@ Each run is read through :class:`~ilcsan.runs.directory.RunDirectory`; what a re
 ``metrics.csv``  one line per evaluation, with at least ``step`` and ``eval_return_mean``;
 ``result.json``  ``best_return``, ``best_step``, ``steps_done``, ``steps_total``, ``finished``; absent
                  while the run is still before its first checkpoint (then the best evaluation of
-                 ``metrics.csv`` is used).
+                 ``metrics.csv`` is used);
+``provenance.json``  optional: the code, libraries and machine of each segment (:mod:`ilcsan.runs.provenance`);
+                 a run without it (older versions) or with a damaged one is reported as not recording it.
 
 A run with a missing or malformed file is skipped and listed with the reason; two runs with the same
 (table, row/label, task, seed) count once (the one with more steps done), the other is listed as a
@@ -64,6 +66,9 @@ class RunRecord:
     wall_seconds: float | None = field(default=None, hash=False, compare=False)
     """Wall-clock time of the training process to ``steps_done`` (result.json; seeds stacked in one process share
     it), None when not recorded."""
+    provenance: tuple[Mapping[str, Any], ...] | None = field(default=None, hash=False, compare=False)
+    """The segments of ``provenance.json`` (:mod:`ilcsan.runs.provenance`), None when the run has none or it is
+    damaged."""
 
     def evaluation_rows(self) -> list[dict[str, float]]:
         """``metrics.csv`` as rows of step, return and diagnostics, as the training loop keeps its evaluations."""
@@ -165,8 +170,16 @@ def read_run(directory: str | Path) -> RunRecord:
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
         finished=finished, steps=steps, returns=returns, td3=td3,
         diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
-        wall_seconds=_wall_seconds(result),
+        wall_seconds=_wall_seconds(result), provenance=_provenance(run),
     )
+
+
+def _provenance(run: RunDirectory) -> tuple[Mapping[str, Any], ...] | None:
+    try:
+        segments = run.provenance()
+    except RunFileError:
+        return None
+    return None if segments is None else tuple(segments)
 
 
 def _wall_seconds(result: Mapping[str, Any] | None) -> float | None:

@@ -2,7 +2,8 @@
 
 Every cell shows our value and, where the paper has one for that (table, row, task), the published
 value beside it: ``3583 ± 86 (n=3) · paper 3583 ± 86``; a cell without runs shows ``—``; the best mean
-of each column and the best APR are in bold.
+of each column and the best APR are in bold. Under a table, one line per cell whose runs differ in code, precision,
+libraries or CPU (their ``provenance.json``, :mod:`ilcsan.runs.provenance`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import math
 from collections.abc import Sequence
 
 from ..paper.layouts import STEPS
+from ..runs.provenance import differences
 from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
 from .collect import SkippedRun
 from .followups import FOLLOW_UPS, NOT_FOUND
@@ -114,7 +116,23 @@ def _md_table(result: TableResult) -> list[str]:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
         lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
     lines.append("")
+    notes = provenance_notes(result)
+    if notes:
+        lines += ["Provenance (each run's `provenance.json`; ×k: how many runs have a segment so):", "",
+                  *(f"- {_md_escape(note)}" for note in notes), ""]
     return lines + _md_follow_ups(result) + _md_seeds(result)
+
+
+def provenance_notes(result: TableResult) -> list[str]:
+    """One line per cell whose runs differ in code, precision, libraries or CPU, or recorded them only in part
+    (:func:`~ilcsan.runs.provenance.differences`): ``Hopper · I_intra: runs differ in CPU (...)``."""
+    notes = []
+    for row in result.rows:
+        for cell in row.cells:
+            text = differences([run.provenance for run in cell.runs])
+            if text:
+                notes.append(f"{cell.task} · {row.label}: {text}.")
+    return notes
 
 
 def _diagnostic(run, name: str) -> str:
@@ -261,7 +279,7 @@ def render_latex(results: TableResult | Sequence[TableResult], skipped: Sequence
             lines.append(" & ".join([latex_escape(row.label), *cells, apr]) + r" \\")
         lines += [r"\bottomrule", r"\end{tabular}}", r"\end{table*}"]
         budget = budget_text(result)
-        lines += ([f"% {budget}"] if budget else []) + [""]
+        lines += ([f"% {budget}"] if budget else []) + [f"% {note}" for note in provenance_notes(result)] + [""]
     lines += [f"% skipped {run.path}: {run.reason}".replace("\n", " ") for run in skipped]
     return "\n".join(lines) + "\n"
 

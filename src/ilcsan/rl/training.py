@@ -11,7 +11,7 @@ Around the loop, each in its own module:
 - :class:`~ilcsan.rl.rollout.TrainingEnvironments`: the K environments and their running episodes;
 - :func:`~ilcsan.rl.evaluation.run_lockstep`: the evaluation episodes;
 - :func:`~ilcsan.runs.checkpoint.open_for_training`: the folders (refuse, check, lock, clean up);
-- :class:`~ilcsan.runs.checkpoint.TrainingCheckpoints`: checkpoints, best policy, metrics, results, resume;
+- :class:`~ilcsan.runs.checkpoint.TrainingCheckpoints`: checkpoints, best policy, metrics, results, provenance, resume;
 - :mod:`~ilcsan.rl.callbacks`: the progress bar, the evaluation lines and TensorBoard.
 """
 
@@ -29,6 +29,7 @@ import torch
 from ..compute.process import ProcessSettings, apply_to_process
 from ..config import RunConfig
 from ..errors import TrainingDiverged
+from ..runs import provenance
 from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
 from ..runs.directory import RunDirectory, RunFileError, run_directories
 from ..snn.diagnostics import EvaluationActions
@@ -89,6 +90,8 @@ class Trainer:
                 self.checkpoints.restore(self, config, state_dim, action_dim)
             else:
                 self._start()
+            self.checkpoints.record_provenance(provenance.collect(self.step, config.matmul, self.matmul["path"],
+                                                                  config.device))
             self.callbacks = Callbacks(TensorBoardLog([d.tensorboard_folder() for d in self.directories], self.step),
                                        ProgressReport(sys.stderr.isatty() if progress is None else progress, log))
         except BaseException:

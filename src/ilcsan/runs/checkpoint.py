@@ -24,7 +24,8 @@ import torch
 
 from ..config import RunConfig
 from ..errors import UserError
-from .directory import CHECKPOINT, RunDirectory
+from . import provenance
+from .directory import CHECKPOINT, PROVENANCE, RunDirectory, RunFileError
 
 CHECKPOINT_FORMAT = "ilcsan-checkpoint"
 POLICY_FORMAT = "ilcsan-policy"
@@ -194,6 +195,18 @@ class TrainingCheckpoints:
         the run chose on this machine, e.g. its matmul path) beside the settings."""
         for directory, seed in zip(self.directories, config.seeds, strict=True):
             directory.write_config(config, seed, measured)
+
+    def record_provenance(self, segment: dict[str, Any]) -> None:
+        """Add ``segment`` (:func:`.provenance.collect`, at the step the run starts or resumes from) to each seed's
+        ``provenance.json`` (:func:`.provenance.extend`). A damaged file is started again, with a line saying so."""
+        for directory in self.directories:
+            try:
+                segments = directory.provenance() or []
+            except RunFileError as error:
+                self.log(f"note: {directory.file(PROVENANCE)} is damaged ({error}); it starts again with this segment")
+                segments = []
+            with disk_errors(directory, segment["step"]):
+                directory.write_provenance(provenance.extend(segments, segment))
 
     def _record_budget(self, config: RunConfig, saved_steps: int) -> None:
         """A run resumed with another budget says so, and its config.json records the new one."""

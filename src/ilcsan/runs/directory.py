@@ -5,6 +5,7 @@ One seed's run lives in one folder (``OUT`` for one seed, ``OUT/seed<k>`` for se
     config.json          the run's configuration (:meth:`RunConfig.for_seed`), enough to rebuild the actor
     metrics.csv          one row per evaluation (:data:`METRIC_FIELDS`)
     result.json          best evaluation so far, steps done, finished flag
+    provenance.json      the code, libraries and machine of each start and resume (:mod:`.provenance`)
     policy.pt            the actor of the best evaluation with its frozen normaliser (deployable)
     checkpoint.pt        the full training state of the last evaluation (resume)
     checkpoint.next.pt   a new checkpoint waiting for the other seeds of its run (two-phase commit)
@@ -41,6 +42,7 @@ from .lock import DirectoryLock
 CONFIG = "config.json"
 METRICS = "metrics.csv"
 RESULT = "result.json"
+PROVENANCE = "provenance.json"
 POLICY = "policy.pt"
 CHECKPOINT = "checkpoint.pt"
 PENDING_CHECKPOINT = "checkpoint.next.pt"
@@ -115,6 +117,16 @@ class RunDirectory:
             return self.result() or {}
         return {}
 
+    def provenance(self) -> list[dict[str, Any]] | None:
+        """The segments of ``provenance.json`` (:mod:`.provenance`), None when absent (a run of an older version;
+        RunFileError when damaged)."""
+        if not self.file(PROVENANCE).exists():
+            return None
+        segments = _json_object(self.file(PROVENANCE)).get("segments")
+        if not isinstance(segments, list) or not all(isinstance(segment, dict) for segment in segments):
+            raise RunFileError(f"{PROVENANCE}: 'segments' must be a list of objects")
+        return segments
+
     def read_checkpoint(self, pending: bool = False) -> dict[str, Any]:
         """``checkpoint.pt`` (or ``checkpoint.next.pt``) as data, never code (UserError when damaged)."""
         return safe_torch_load(self.file(PENDING_CHECKPOINT if pending else CHECKPOINT))
@@ -152,6 +164,9 @@ class RunDirectory:
     def write_budget(self, steps: int) -> None:
         """Set config.json's ``steps`` (a run resumed with another budget), keeping everything else in it."""
         atomic_write_json(self.file(CONFIG), {**self.config_object(), "steps": steps})
+
+    def write_provenance(self, segments: list[dict[str, Any]]) -> None:
+        atomic_write_json(self.file(PROVENANCE), {"segments": segments})
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         buffer = io.StringIO()
