@@ -134,3 +134,32 @@ def test_a_training_run_uses_and_records_the_papers_contact_forces(tmp_path):
     assert np.all(observations[..., -CONTACT_VALUES:] == 0.0) and np.any(observations[..., :-CONTACT_VALUES] != 0)
     assert json.loads((tmp_path / "config.json").read_text())["contact_forces"] == "zeroed"
     assert load(tmp_path).contact_forces == "zeroed"
+
+
+def _ant_cell(root, *choices):
+    """Table intra's Ant I_intra cell, one run per choice, each config.json with that contact-forces value (None: a
+    run recorded before the setting)."""
+    from test_report import intra_run
+
+    for seed, choice in enumerate(choices):
+        folder = intra_run(root, "Ant", "intra", seed, [1000.0 + seed, 2000.0])
+        config = json.loads((folder / "config.json").read_text())
+        if choice is not None:
+            config["contact_forces"] = choice
+        (folder / "config.json").write_text(json.dumps(config))
+
+
+@pytest.mark.parametrize(("choices", "expected"), [
+    (("zeroed", "zeroed"), None),
+    (("zeroed", "simulated", None), "runs differ in contact forces (simulated ×2, zeroed ×1)"),
+    (("simulated", None), "contact forces simulated: not the paper's states"),
+])
+def test_the_report_names_cells_whose_contact_forces_differ_or_are_not_the_papers(tmp_path, choices, expected):
+    from test_provenance import report_notes
+
+    _ant_cell(tmp_path, *choices)
+    notes, _, _ = report_notes(tmp_path)
+    if expected is None:
+        assert notes == []
+    else:
+        assert len(notes) == 1 and notes[0].startswith("Ant · I\\_intra: " + expected)

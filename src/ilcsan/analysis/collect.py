@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import ActorConfig, TD3Config
+from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TD3Config
 from ..errors import UserError
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
@@ -66,6 +66,8 @@ class RunRecord:
     wall_seconds: float | None = field(default=None, hash=False, compare=False)
     """Wall-clock time of the training process to ``steps_done`` (result.json; seeds stacked in one process share
     it), None when not recorded."""
+    contact_forces: str = field(default=RECORDED_BEFORE_CONTACT_FORCES, hash=False, compare=False)
+    """How the task's contact forces read (config.json; :data:`~ilcsan.config.CONTACT_FORCES`)."""
     provenance: tuple[Mapping[str, Any], ...] | None = field(default=None, hash=False, compare=False)
     """The segments of ``provenance.json`` (:mod:`ilcsan.runs.provenance`), None when the run has none or it is
     damaged."""
@@ -171,6 +173,7 @@ def read_run(directory: str | Path) -> RunRecord:
         finished=finished, steps=steps, returns=returns, td3=td3,
         diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
         wall_seconds=_wall_seconds(result), provenance=_provenance(run),
+        contact_forces=str(config.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES),
     )
 
 

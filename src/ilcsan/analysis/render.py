@@ -11,8 +11,10 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections import Counter
 from collections.abc import Sequence
 
+from ..config import CONTACT_FORCE_TASKS
 from ..paper.layouts import STEPS
 from ..runs.provenance import differences
 from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
@@ -118,21 +120,35 @@ def _md_table(result: TableResult) -> list[str]:
     lines.append("")
     notes = provenance_notes(result)
     if notes:
-        lines += ["Provenance (each run's `provenance.json`; ×k: how many runs have a segment so):", "",
-                  *(f"- {_md_escape(note)}" for note in notes), ""]
+        lines += ["Provenance (each run's `provenance.json` and contact forces; ×k: how many runs have a segment so):",
+                  "", *(f"- {_md_escape(note)}" for note in notes), ""]
     return lines + _md_follow_ups(result) + _md_seeds(result)
 
 
 def provenance_notes(result: TableResult) -> list[str]:
     """One line per cell whose runs differ in code, precision, libraries or CPU, or recorded them only in part
-    (:func:`~ilcsan.runs.provenance.differences`): ``Hopper · I_intra: runs differ in CPU (...)``."""
+    (:func:`~ilcsan.runs.provenance.differences`): ``Hopper · I_intra: runs differ in CPU (...)``; and per cell whose
+    contact forces differ between its runs or are not the paper's (:func:`contact_forces_note`)."""
     notes = []
     for row in result.rows:
         for cell in row.cells:
-            text = differences([run.provenance for run in cell.runs])
-            if text:
-                notes.append(f"{cell.task} · {row.label}: {text}.")
+            for text in (differences([run.provenance for run in cell.runs]), contact_forces_note(cell.task, cell.runs)):
+                if text:
+                    notes.append(f"{cell.task} · {row.label}: {text}.")
     return notes
+
+
+def contact_forces_note(task: str, runs: Sequence) -> str | None:
+    """Whether a cell's runs read their task's contact forces in more than one way, or all as MuJoCo simulates them
+    on a paper task whose simulator read zeros (:data:`~ilcsan.config.CONTACT_FORCE_TASKS`); None otherwise."""
+    counts = Counter(run.contact_forces for run in runs)
+    if len(counts) > 1:
+        return "runs differ in contact forces (" + ", ".join(f"{name} ×{count}" for name, count in
+                                                             sorted(counts.items())) + ")"
+    if task in CONTACT_FORCE_TASKS and set(counts) == {"simulated"}:
+        return ("contact forces simulated: not the paper's states, whose contact forces read zero "
+                "(--contact-forces zeroed)")
+    return None
 
 
 def _diagnostic(run, name: str) -> str:
