@@ -310,7 +310,7 @@ def test_resume_refuses_a_run_with_other_settings(tmp_path):
 def test_run_directory_contents(tmp_path):
     train(tiny_run(), tmp_path / "run", progress=False, log=lambda *_: None)
     names = {p.name for p in (tmp_path / "run").iterdir()}
-    assert {"config.json", "metrics.csv", "result.json", "policy.pt", "checkpoint.pt", "replay",
+    assert {"config.json", "metrics.csv", "result.json", "policy.pt", "checkpoint.pt", "provenance.json", "replay",
             "tensorboard"} <= names
     assert not [p for p in (tmp_path / "run").rglob("*.tmp")], "no temporary file may be left behind"
     config = json.loads((tmp_path / "run" / "config.json").read_text())
