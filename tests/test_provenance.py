@@ -70,6 +70,20 @@ def test_the_cpu_model_is_cpuinfos_model_name_else_the_platforms(tmp_path: Path,
     assert provenance.cpu_model(tmp_path / "absent") is None
 
 
+def test_the_cpu_flags_are_those_that_decide_the_matmul_paths(tmp_path: Path) -> None:
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("model name\t: Intel(R) Xeon(R) Processor\nflags\t\t: fpu avx2 avx512f avx512_bf16 amx_tile "
+                       "amx_bf16 amx_int8\n")
+    assert provenance.cpu_flags(cpuinfo) == ["avx2", "avx512f", "avx512_bf16", "amx_bf16"]
+    cpuinfo.write_text("model name\t: AMD EPYC\nflags\t\t: fpu avx2 avx512f avx512_bf16\n")
+    assert provenance.cpu_flags(cpuinfo) == ["avx2", "avx512f", "avx512_bf16"]
+    assert provenance.cpu_flags(tmp_path / "absent") is None
+    same_name = [[segment(cpu="Intel(R) Xeon(R) Processor") | {"cpu_flags": flags}]
+                 for flags in (["avx512f", "amx_bf16"], ["avx512f"])]
+    assert provenance.differences(same_name) == ("runs differ in CPU (Intel Xeon [avx512f amx_bf16] ×1, Intel Xeon "
+                                                 "[avx512f] ×1)")
+
+
 def test_a_library_that_is_not_installed_is_none() -> None:
     assert provenance.library_version("torch") == torch.__version__
     assert provenance.library_version("ilcsan-no-such-distribution") is None

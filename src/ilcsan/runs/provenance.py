@@ -50,7 +50,7 @@ def collect(step: int, matmul: str, matmul_path: str, device: str = "cpu") -> di
         "ilcsan": __version__, "commit": commit, "dirty": dirty,
         "python": platform.python_version(),
         **{name: library_version(name) for name in LIBRARIES},
-        "cpu": cpu_model(), "cores": os.cpu_count(), "threads": torch.get_num_threads(),
+        "cpu": cpu_model(), "cpu_flags": cpu_flags(), "cores": os.cpu_count(), "threads": torch.get_num_threads(),
         "device": device, "matmul": matmul, "matmul_path": matmul_path,
     }
 
@@ -114,6 +114,25 @@ def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str | None:
     return platform.processor() or None
 
 
+MATMUL_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16")
+"""The CPU features that decide the matmul paths' speed (:mod:`ilcsan.compute.matmul`): a virtual machine may name its
+CPU only "Intel(R) Xeon(R) Processor", and these tell such CPUs apart where bf16 and float32 speeds differ."""
+
+
+def cpu_flags(cpuinfo: Path = Path("/proc/cpuinfo")) -> list[str] | None:
+    """Which of :data:`MATMUL_FLAGS` the CPU has (the first ``flags`` line of ``/proc/cpuinfo``); None where the file
+    is unreadable or has no such line."""
+    try:
+        for line in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "flags":
+                present = set(value.split())
+                return [flag for flag in MATMUL_FLAGS if flag in present]
+    except OSError:
+        pass
+    return None
+
+
 # ---------------------------------------------------------------------------------- comparing runs
 def short_cpu(model: str) -> str:
     """A CPU model without trademarks and filler: ``Intel(R) Xeon(R) Platinum 8488C`` → ``Intel Xeon Platinum
@@ -137,8 +156,9 @@ def _precision(segment: Mapping[str, Any]) -> str:
 
 
 def _cpu(segment: Mapping[str, Any]) -> str:
-    model = segment.get("cpu")
-    return short_cpu(model) if isinstance(model, str) else "unknown"
+    model, flags = segment.get("cpu"), segment.get("cpu_flags")
+    text = short_cpu(model) if isinstance(model, str) else "unknown"
+    return f"{text} [{' '.join(map(str, flags))}]" if isinstance(flags, list) and flags else text
 
 
 def _version(name: str) -> Callable[[Mapping[str, Any]], str]:
