@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import nir
 import numpy as np
@@ -25,6 +26,10 @@ from ilcsan.deploy.nir import (
 from ilcsan.errors import UserError
 
 ROUND_TRIP_TOLERANCE = 1e-5
+DATA = Path(__file__).with_name("data")
+WRITTEN_BEFORE = {"ilc-san": {"hidden": (16,), "intra": "lateral+bias"},
+                  "popsan": {"hidden": (16,), "decoder": "fr", "intra": "none"}}
+"""The actors of tests/data/*.nir, written by ``export_nir`` (commit 7040e47) before the ``sinabs`` target existed."""
 
 
 def test_cubalif_parameters_of_the_paper():
@@ -217,3 +222,30 @@ def test_export_command_writes_nir_for_a_trained_run(trained_run, tmp_path):
     policy = load(trained_run)
     observation = np.array([0.3, -0.9, 0.5])
     assert np.abs(nir_action(graph, observation) - policy.predict(observation)).max() < ROUND_TRIP_TOLERANCE
+
+
+def _same(written, built) -> bool:
+    if isinstance(written, np.ndarray) or isinstance(built, np.ndarray):
+        written, built = np.asarray(written), np.asarray(built)
+        return written.shape == built.shape and np.array_equal(written, built)
+    return written == built
+
+
+@pytest.mark.parametrize("path", sorted(DATA.glob("*.nir")), ids=lambda path: path.stem)
+def test_targets_write_what_they_wrote_before(tmp_path, path):
+    """A target never changes what another writes: each graph in tests/data, written before the ``sinabs`` target
+    existed, equals what ``export_nir`` writes now for the same actor and target (nodes, their arrays, edges in
+    order, metadata)."""
+    name, target = path.stem.split(".")
+    written = nir.read(path)
+    built = nir.read(export_nir(random_policy(**WRITTEN_BEFORE[name]), tmp_path / path.name, target=target))
+    assert list(built.edges) == list(written.edges)
+    assert sorted(built.nodes) == sorted(written.nodes)
+    for node_name, node in written.nodes.items():
+        fields, now = node.to_dict(), built.nodes[node_name].to_dict()
+        assert sorted(now) == sorted(fields), node_name
+        for field, value in fields.items():
+            assert _same(value, now[field]), (node_name, field)
+    assert sorted(built.metadata) == sorted(written.metadata)
+    for key, value in written.metadata.items():
+        assert _same(value, built.metadata[key]), key
