@@ -1,6 +1,7 @@
-"""Exported NIR graphs run in the real consumers (snnTorch 1.0.0, Norse 1.1.0 through NIRTorch 2.6): driven by
-the host encoder's spikes for T steps, their actions equal ``policy.predict`` on 50 observations. Needs the
-``nir`` extra (``pip install -e .[nir]``, installed by scripts/setup); a missing consumer fails, never skips."""
+"""Exported NIR graphs run in the real consumers (snnTorch 1.0.0, Norse 1.1.0, SpikingJelly 2.0.0, through NIRTorch
+2.6): driven by the host encoder's spikes for T steps, their actions equal ``policy.predict`` on 50 observations.
+Needs the ``nir`` extra (``pip install -e .[nir]``, installed by scripts/setup); a missing consumer fails, never
+skips."""
 
 from __future__ import annotations
 
@@ -16,11 +17,14 @@ import pytest
 from spiking_policies import observations, random_policy
 
 from ilcsan.deploy.nir import export_nir, host_decode, host_encode, read_host
-from ilcsan.deploy.nir.consumers import norse_module, run_module, snntorch_module
+from ilcsan.deploy.nir.consumers import norse_module, run_module, snntorch_module, spikingjelly_module
 
 TOLERANCE = 1e-5
 CASES = {"ilc-san": {}, "popsan": {"decoder": "fr", "intra": "none"}, "self": {"intra": "self"},
-         "lateral+bias": {"intra": "lateral+bias"}}
+         "lateral+bias": {"intra": "lateral+bias"}, "authors-timing": {"intra_timing": "authors"},
+         "max-leaky-deep": {"decoder": "max", "alpha_v_li": 0.75, "hidden": (40, 32, 24), "timesteps": 8}}
+"""ILC-SAN (I_intra, last decoder), PopSAN (``fr``), the intra masks ``self`` and ``lateral+bias`` (the clock neuron),
+b_intra from t = 1 (the authors' timing), and D_max with a leaky LI, three hidden layers and T = 8."""
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
@@ -32,7 +36,8 @@ def consumer_actions(graph, load, batch: np.ndarray) -> np.ndarray:
     return np.stack([host_decode(host, outputs[:, index]) for index in range(len(batch))])
 
 
-@pytest.mark.parametrize("load", [snntorch_module, norse_module], ids=["snntorch", "norse"])
+@pytest.mark.parametrize("load", [snntorch_module, norse_module, spikingjelly_module],
+                         ids=["snntorch", "norse", "spikingjelly"])
 @pytest.mark.parametrize("case", list(CASES))
 def test_consumer_reproduces_predict(tmp_path, case, load):
     policy = random_policy(**CASES[case])
@@ -92,7 +97,7 @@ def snippets() -> dict[str, str]:
     return {name.lower(): textwrap.dedent(code) for name, code in blocks}
 
 
-@pytest.mark.parametrize("consumer", ["norse", "snntorch"])
+@pytest.mark.parametrize("consumer", ["norse", "snntorch", "spikingjelly"])
 def test_readme_snippets_run_as_written(tmp_path, monkeypatch, consumer):
     code = snippets()[consumer]
     assert len(code.strip().splitlines()) <= 10
