@@ -249,3 +249,50 @@ def test_targets_write_what_they_wrote_before(tmp_path, path):
     assert sorted(built.metadata) == sorted(written.metadata)
     for key, value in written.metadata.items():
         assert _same(value, built.metadata[key]), key
+
+
+def test_sinabs_target_is_the_portable_graph_in_sinabs_steps(tmp_path):
+    """``--target sinabs``: each CubaLIF as nir.LI (α_C) then nir.LIF (α_V) with exp(−1/τ) = α, r = 1, no v_reset in
+    the file (nir 1.0.4 reads none), the intra Linear as a zero-bias Affine on the same recurrent edge, dt = 1, and
+    every other node and the host metadata as in ``portable`` (Sinabs runs it: tests/test_nir_consumers.py)."""
+    import h5py
+
+    policy = random_policy(hidden=(32, 24), alpha_c=0.25, alpha_v=0.6)
+    path = export_nir(policy, tmp_path / "actor.nir", target="sinabs")
+    with h5py.File(path) as file:
+        assert not [name for name, group in file["node"]["nodes"].items() if "v_reset" in group]
+    graph, portable = nir.read(path), build_graph(policy, "portable")
+    types = {name: type(node).__name__ for name, node in graph.nodes.items()}
+    assert types == {"input": "Input", "layer1_fc": "Affine", "layer1_syn": "LI", "layer1_lif": "LIF",
+                     "layer2_fc": "Affine", "layer2_syn": "LI", "layer2_lif": "LIF", "layer3_fc": "Affine",
+                     "layer3_syn": "LI", "layer3_lif": "LIF", "layer3_intra": "Affine", "decoder": "Affine",
+                     "output": "Output"}
+    assert list(graph.edges) == [
+        ("input", "layer1_fc"), ("layer1_fc", "layer1_syn"), ("layer1_syn", "layer1_lif"), ("layer1_lif", "layer2_fc"),
+        ("layer2_fc", "layer2_syn"), ("layer2_syn", "layer2_lif"), ("layer2_lif", "layer3_fc"),
+        ("layer3_fc", "layer3_syn"), ("layer3_syn", "layer3_lif"), ("layer3_lif", "layer3_intra"),
+        ("layer3_intra", "layer3_syn"), ("layer3_lif", "decoder"), ("decoder", "output")]
+    for index in (1, 2, 3):
+        syn, lif = graph.nodes[f"layer{index}_syn"], graph.nodes[f"layer{index}_lif"]
+        np.testing.assert_allclose(np.exp(-1.0 / syn.tau), 0.25, rtol=1e-6)
+        np.testing.assert_allclose(np.exp(-1.0 / lif.tau), 0.6, rtol=1e-6)
+        for node in (syn, lif):
+            np.testing.assert_array_equal(node.r, 1.0)
+            np.testing.assert_array_equal(node.v_leak, 0.0)
+        np.testing.assert_array_equal(lif.v_threshold, portable.nodes[f"layer{index}_lif"].v_threshold)
+        np.testing.assert_array_equal(lif.v_reset, 0.0)  # nir 1.0.8's default for the missing field
+    intra = graph.nodes["layer3_intra"]
+    np.testing.assert_array_equal(intra.weight, portable.nodes["layer3_intra"].weight)
+    assert intra.bias.shape == (intra.weight.shape[0],) and not intra.bias.any()
+    for name in ("layer1_fc", "layer2_fc", "layer3_fc", "decoder"):
+        np.testing.assert_array_equal(graph.nodes[name].weight, portable.nodes[name].weight)
+        np.testing.assert_array_equal(graph.nodes[name].bias, portable.nodes[name].bias)
+    assert graph.metadata["dt"] == 1.0
+    host, portable_host = json.loads(graph.metadata["host"]), json.loads(portable.metadata["host"])
+    assert (host.pop("target"), portable_host.pop("target")) == ("sinabs", "portable")
+    assert host.pop("timing") != portable_host.pop("timing")
+    assert host == portable_host and read_host(graph)["integrator"] == "host"
+    for key in ("encoder_mu", "encoder_sigma", "timesteps", "format"):
+        np.testing.assert_array_equal(graph.metadata[key], portable.metadata[key])
+    with pytest.raises(UserError, match="finite"):
+        build_graph(random_policy(alpha_v=1.0), "sinabs")

@@ -56,6 +56,8 @@ WEIGHT_FORMATS: dict[str, str] = {"float32": "float32 weights", "int8": "int8 we
 NIR_TARGETS: dict[str, str] = {
     "portable": "the decoder's LI integrator on the host; runs in snnTorch and Norse",
     "generic": "the LI integrator in the graph",
+    "sinabs": "for Sinabs 3.1.3 (nir <= 1.0.4): each CubaLIF as LI + LIF in steps; load with "
+              "ilcsan.deploy.nir.consumers.sinabs_module",
 }
 """``ilcsan export --target``: the profiles of a NIR graph."""
 COLLAPSE_RETURN = 100.0

@@ -16,7 +16,12 @@ Measured with nir 1.0.8, nirtorch 2.6, snnTorch 1.0.0, Norse 1.1.0 and SpikingJe
   multi-step mode refuses recurrent graphs). It maps CubaLIF only when the parameters are uniform over the
   neurons and R = τ_mem/dt, w_in = τ_syn/dt, v_leak = 0, which ours are.
 
-All three return NIRTorch graph modules called as ``output, state = module(spikes_t, state)``; the state carries
+* Sinabs 3.1.3 (its own environment: it pins nir ≤ 1.0.4 and, through it, nirtorch 2.0.2): the target-``sinabs``
+  graph (:mod:`.sinabs`) with :func:`sinabs_module`, ``sinabs.from_nir`` with each LIF layer switched to one spike
+  per step and a reset to 0. Its layers keep their voltages between calls: load the graph again, or call
+  ``sinabs.reset_states(module)``, before the next observation (:func:`run_module` is given a fresh module).
+
+All four return NIRTorch graph modules called as ``output, state = module(spikes_t, state)``; the state carries
 the recurrent edge's previous value, so it must be threaded through the T steps (:func:`run_module`).
 """
 
@@ -50,6 +55,20 @@ def spikingjelly_module(graph):
     from spikingjelly.activation_based.nir_exchange import import_from_nir
 
     return import_from_nir(graph, dt=float(graph.metadata["dt"]))
+
+
+def sinabs_module(graph):
+    """The target-``sinabs`` graph as Sinabs layers, one step per call: ``sinabs.from_nir(graph, num_timesteps=1)``
+    with every spiking LIF layer set to ``SingleSpike`` and ``MembraneReset`` (one spike per step, reset to 0:
+    CLIF's; Sinabs's defaults are several spikes and a reset by subtraction)."""
+    import sinabs
+    from sinabs.activation import MembraneReset, SingleSpike
+
+    module = sinabs.from_nir(graph, num_timesteps=1)
+    for layer in module.modules():
+        if isinstance(layer, sinabs.layers.LIF) and layer.spike_fn is not None:  # ExpLeak is a LIF without spikes
+            layer.spike_fn, layer.reset_fn = SingleSpike, MembraneReset()
+    return module
 
 
 def run_module(module, spikes: np.ndarray) -> np.ndarray:
