@@ -8,9 +8,9 @@ the ``fr`` decoder (PopSAN) the graph ends at the output population's spikes; th
 Norse 1.1.0 and snnTorch 1.0.0 (through NIRTorch 2.6) order the nodes by the edges, not by name (``nir.read``
 returns them alphabetically; tests/test_nir_consumers.py runs both).
 
-Targets. ``portable`` (default): the decoder's LI neuron (Eq. (7)) runs on the host — snnTorch 1.0.0 and
-Norse 1.1.0 map neither nir.LI nor nir.I — and the graph's output is its input X_t = W_D S_t + b_D per step.
-``generic``: the LI neuron is in the graph (nir.LI, or nir.I for α = 1) and the output is V_t. ``sinabs``: the
+Targets. ``portable`` (default): the decoder's LI neuron (Eq. (7)) runs on the host — snnTorch 1.0.0, Norse 1.1.0
+and SpikingJelly 2.0.0 map neither nir.LI nor nir.I — and the graph's output is its input X_t = W_D S_t + b_D per
+step. ``generic``: the LI neuron is in the graph (nir.LI, or nir.I for α = 1) and the output is V_t. ``sinabs``: the
 portable graph in the dialect Sinabs 3.1.3 reads (each CubaLIF as nir.LI then nir.LIF with τ in steps, the intra
 Linear as an Affine, nir 1.0.4-readable; :mod:`.sinabs`). A target only adds a branch: the others' graphs stay as
 they were (tests/data, test_nir_export.py).
