@@ -15,7 +15,6 @@ Measured with nir 1.0.8, nirtorch 2.6, snnTorch 1.0.0, Norse 1.1.0 and SpikingJe
   runs every target-``portable`` graph as written in its single-step mode (``step_mode="s"``, its default; its
   multi-step mode refuses recurrent graphs). It maps CubaLIF only when the parameters are uniform over the
   neurons and R = τ_mem/dt, w_in = τ_syn/dt, v_leak = 0, which ours are.
-
 * Sinabs 3.1.3 (its own environment: it pins nir ≤ 1.0.4 and, through it, nirtorch 2.0.2): the target-``sinabs``
   graph (:mod:`.sinabs`) with :func:`sinabs_module`, ``sinabs.from_nir`` with each LIF layer switched to one spike
   per step and a reset to 0. Its layers keep their voltages between calls: load the graph again, or call
