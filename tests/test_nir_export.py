@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import nir
 import numpy as np
@@ -25,6 +26,10 @@ from ilcsan.deploy.nir import (
 from ilcsan.errors import UserError
 
 ROUND_TRIP_TOLERANCE = 1e-5
+DATA = Path(__file__).with_name("data")
+WRITTEN_BEFORE = {"ilc-san": {"hidden": (16,), "intra": "lateral+bias"},
+                  "popsan": {"hidden": (16,), "decoder": "fr", "intra": "none"}}
+"""The actors of tests/data/*.nir, written by ``export_nir`` (commit 7040e47) before the ``sinabs`` target existed."""
 
 
 def test_cubalif_parameters_of_the_paper():
@@ -217,3 +222,83 @@ def test_export_command_writes_nir_for_a_trained_run(trained_run, tmp_path):
     policy = load(trained_run)
     observation = np.array([0.3, -0.9, 0.5])
     assert np.abs(nir_action(graph, observation) - policy.predict(observation)).max() < ROUND_TRIP_TOLERANCE
+
+
+def _same(written, built) -> bool:
+    if isinstance(written, np.ndarray) or isinstance(built, np.ndarray):
+        written, built = np.asarray(written), np.asarray(built)
+        return written.shape == built.shape and np.array_equal(written, built)
+    return written == built
+
+
+@pytest.mark.parametrize("path", sorted(DATA.glob("*.nir")), ids=lambda path: path.stem)
+def test_targets_write_what_they_wrote_before(tmp_path, path):
+    """A target never changes what another writes: each graph in tests/data, written before the ``sinabs`` target
+    existed, equals what ``export_nir`` writes now for the same actor and target (nodes, their arrays, edges in
+    order, metadata; of the host JSON, the keys the bundle's meta does not own)."""
+    name, target = path.stem.split(".")
+    written, policy = nir.read(path), random_policy(**WRITTEN_BEFORE[name])
+    built = nir.read(export_nir(policy, tmp_path / path.name, target=target))
+    assert list(built.edges) == list(written.edges)
+    assert sorted(built.nodes) == sorted(written.nodes)
+    for node_name, node in written.nodes.items():
+        fields, now = node.to_dict(), built.nodes[node_name].to_dict()
+        assert sorted(now) == sorted(fields), node_name
+        for field, value in fields.items():
+            assert _same(value, now[field]), (node_name, field)
+    assert sorted(built.metadata) == sorted(written.metadata)
+    for key, value in written.metadata.items():
+        if key != "host":
+            assert _same(value, built.metadata[key]), key
+    # the host JSON: the bundle's meta (shared with --format npz) may change on its own; the graph's own keys may not
+    meta = bundle_meta(policy)
+    host, host_before = json.loads(built.metadata["host"]), json.loads(written.metadata["host"])
+    for key in set(host) | set(host_before):
+        assert host.get(key) == (meta[key] if key in meta else host_before.get(key)), key
+
+
+def test_sinabs_target_is_the_portable_graph_in_sinabs_steps(tmp_path):
+    """``--target sinabs``: each CubaLIF as nir.LI (α_C) then nir.LIF (α_V) with exp(−1/τ) = α, r = 1, no v_reset in
+    the file (nir 1.0.4 reads none), the intra Linear as a zero-bias Affine on the same recurrent edge, dt = 1, and
+    every other node and the host metadata as in ``portable`` (Sinabs runs it: tests/test_nir_consumers.py)."""
+    import h5py
+
+    policy = random_policy(hidden=(32, 24), alpha_c=0.25, alpha_v=0.6)
+    path = export_nir(policy, tmp_path / "actor.nir", target="sinabs")
+    with h5py.File(path) as file:
+        assert not [name for name, group in file["node"]["nodes"].items() if "v_reset" in group]
+    graph, portable = nir.read(path), build_graph(policy, "portable")
+    types = {name: type(node).__name__ for name, node in graph.nodes.items()}
+    assert types == {"input": "Input", "layer1_fc": "Affine", "layer1_syn": "LI", "layer1_lif": "LIF",
+                     "layer2_fc": "Affine", "layer2_syn": "LI", "layer2_lif": "LIF", "layer3_fc": "Affine",
+                     "layer3_syn": "LI", "layer3_lif": "LIF", "layer3_intra": "Affine", "decoder": "Affine",
+                     "output": "Output"}
+    assert list(graph.edges) == [
+        ("input", "layer1_fc"), ("layer1_fc", "layer1_syn"), ("layer1_syn", "layer1_lif"), ("layer1_lif", "layer2_fc"),
+        ("layer2_fc", "layer2_syn"), ("layer2_syn", "layer2_lif"), ("layer2_lif", "layer3_fc"),
+        ("layer3_fc", "layer3_syn"), ("layer3_syn", "layer3_lif"), ("layer3_lif", "layer3_intra"),
+        ("layer3_intra", "layer3_syn"), ("layer3_lif", "decoder"), ("decoder", "output")]
+    for index in (1, 2, 3):
+        syn, lif = graph.nodes[f"layer{index}_syn"], graph.nodes[f"layer{index}_lif"]
+        np.testing.assert_allclose(np.exp(-1.0 / syn.tau), 0.25, rtol=1e-6)
+        np.testing.assert_allclose(np.exp(-1.0 / lif.tau), 0.6, rtol=1e-6)
+        for node in (syn, lif):
+            np.testing.assert_array_equal(node.r, 1.0)
+            np.testing.assert_array_equal(node.v_leak, 0.0)
+        np.testing.assert_array_equal(lif.v_threshold, portable.nodes[f"layer{index}_lif"].v_threshold)
+        np.testing.assert_array_equal(lif.v_reset, 0.0)  # nir 1.0.8's default for the missing field
+    intra = graph.nodes["layer3_intra"]
+    np.testing.assert_array_equal(intra.weight, portable.nodes["layer3_intra"].weight)
+    assert intra.bias.shape == (intra.weight.shape[0],) and not intra.bias.any()
+    for name in ("layer1_fc", "layer2_fc", "layer3_fc", "decoder"):
+        np.testing.assert_array_equal(graph.nodes[name].weight, portable.nodes[name].weight)
+        np.testing.assert_array_equal(graph.nodes[name].bias, portable.nodes[name].bias)
+    assert graph.metadata["dt"] == 1.0
+    host, portable_host = json.loads(graph.metadata["host"]), json.loads(portable.metadata["host"])
+    assert (host.pop("target"), portable_host.pop("target")) == ("sinabs", "portable")
+    assert host.pop("timing") != portable_host.pop("timing")
+    assert host == portable_host and read_host(graph)["integrator"] == "host"
+    for key in ("encoder_mu", "encoder_sigma", "timesteps", "format"):
+        np.testing.assert_array_equal(graph.metadata[key], portable.metadata[key])
+    with pytest.raises(UserError, match="finite"):
+        build_graph(random_policy(alpha_v=1.0), "sinabs")

@@ -54,8 +54,10 @@ EXPORT_FORMATS: dict[str, str] = {"npz": "deploy bundle for the numpy runtime",
 WEIGHT_FORMATS: dict[str, str] = {"float32": "float32 weights", "int8": "int8 weights with a float32 scale per layer"}
 """``ilcsan export --weights``: the weight formats of a deploy bundle."""
 NIR_TARGETS: dict[str, str] = {
-    "portable": "the decoder's LI integrator on the host; runs in snnTorch and Norse",
+    "portable": "the decoder's LI integrator on the host; runs in snnTorch, Norse and SpikingJelly",
     "generic": "the LI integrator in the graph",
+    "sinabs": "for Sinabs 3.1.3 (nir <= 1.0.4): each CubaLIF as LI + LIF in steps; load with "
+              "ilcsan.deploy.nir.consumers.sinabs_module",
 }
 """``ilcsan export --target``: the profiles of a NIR graph."""
 COLLAPSE_RETURN = 100.0

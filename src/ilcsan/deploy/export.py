@@ -17,7 +17,7 @@ def export(run: str | Path, format: str = "npz", out: Path | None = None, weight
            target: str = "portable") -> Path:
     """Export the policy of ``run`` in ``format`` to ``out`` (default ``<run>/actor.<format>``); ``target`` selects
     the NIR profile (:data:`ilcsan.deploy.nir.TARGETS`: portable = the LI integrator on the host, generic = in
-    the graph)."""
+    the graph, sinabs = portable in Sinabs's steps, nir 1.0.4-readable)."""
     if format not in FORMATS:
         raise UserError(f"--format {format!r} is not one of: {', '.join(FORMATS)}")
     if weights not in WEIGHTS:

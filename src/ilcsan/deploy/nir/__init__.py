@@ -2,7 +2,8 @@
 
 ``export_nir(policy, path)`` writes the graph (:mod:`.export`: layout, CLIF → CubaLIF, dt = 1e-4 s);
 ``nir.read(path)`` gives it back; :func:`nir_action` runs it with :func:`simulate_nir` (:mod:`.interpreter`)
-and the host parts (:mod:`.host`); :mod:`.consumers` loads it into snnTorch or Norse and runs it there.
+and the host parts (:mod:`.host`); :mod:`.consumers` loads it into snnTorch, Norse, SpikingJelly or (target
+``sinabs``, :mod:`.sinabs`) Sinabs and runs it there.
 """
 
 from .graph import DT, FORMAT, TARGETS, block_diagonal, build_graph, cubalif_parameters, export_nir, leaky_integrator

@@ -8,9 +8,12 @@ the ``fr`` decoder (PopSAN) the graph ends at the output population's spikes; th
 Norse 1.1.0 and snnTorch 1.0.0 (through NIRTorch 2.6) order the nodes by the edges, not by name (``nir.read``
 returns them alphabetically; tests/test_nir_consumers.py runs both).
 
-Targets. ``portable`` (default): the decoder's LI neuron (Eq. (7)) runs on the host — snnTorch 1.0.0 and
-Norse 1.1.0 map neither nir.LI nor nir.I — and the graph's output is its input X_t = W_D S_t + b_D per step.
-``generic``: the LI neuron is in the graph (nir.LI, or nir.I for α = 1) and the output is V_t.
+Targets. ``portable`` (default): the decoder's LI neuron (Eq. (7)) runs on the host — snnTorch 1.0.0, Norse 1.1.0
+and SpikingJelly 2.0.0 map neither nir.LI nor nir.I — and the graph's output is its input X_t = W_D S_t + b_D per
+step. ``generic``: the LI neuron is in the graph (nir.LI, or nir.I for α = 1) and the output is V_t. ``sinabs``: the
+portable graph in the dialect Sinabs 3.1.3 reads (each CubaLIF as nir.LI then nir.LIF with τ in steps, the intra
+Linear as an Affine, nir 1.0.4-readable; :mod:`.sinabs`). A target only adds a branch: the others' graphs stay as
+they were (tests/data, test_nir_export.py).
 
 CLIF → CubaLIF, from NIR's definition (nir 1.0.8): τ_syn dI/dt = −I + w_in S, τ_mem dv/dt = (v_leak − v) + R I,
 z = [v > v_threshold], v ← v_reset on z. Forward Euler with step dt, the voltage using this step's current:
@@ -114,6 +117,10 @@ def build_graph(policy, target: str = "portable", dt: float = DT):
 
     _check_exportable(policy, target)
     config, actor = policy.actor_config, policy.actor
+    if target == "sinabs":  # Sinabs's steps: the portable layout with dt = 1, rewritten (sinabs.py)
+        from .sinabs import sinabs_dialect
+
+        return sinabs_dialect(build_graph(policy, "portable", dt=1.0), config.alpha_c, config.alpha_v)
     weights = [_weights(layer.weight) for layer in actor.layers]
     biases = [_weights(layer.bias) for layer in actor.layers]
     intra_bias = actor.intra is not None and INTRA_MASKS[config.intra].bias
@@ -186,5 +193,8 @@ def export_nir(policy, path: str | Path, target: str = "portable") -> Path:
 
     graph = build_graph(policy, target)
     path = Path(path)
-    atomic_write_file(path, lambda temporary: nir.write(temporary, graph))
+    write = nir.write
+    if target == "sinabs":  # nir 1.0.4, Sinabs's pin, reads no v_reset
+        from .sinabs import write_sinabs_graph as write
+    atomic_write_file(path, lambda temporary: write(temporary, graph))
     return path
