@@ -1,6 +1,6 @@
 """Run by the Sinabs test in Sinabs's own Python (.venv-sinabs: sinabs 3.1.3, nir 1.0.4): every ``*.nir`` graph
 (target ``sinabs``) in a folder, read with nir 1.0.4 and run by :func:`ilcsan.deploy.nir.consumers.sinabs_module` on
-that graph's observations (``<name>.obs.npy``, all at once as a batch), and the README's Sinabs snippet (``snippet.py``)
+that graph's observations (``<name>.obs.npy``, as one batch), and the documented Sinabs snippet (``snippet.py``)
 as written on the observations in ``snippet/`` (one at a time, from ``snippet/actor.nir``); writes ``results.json``:
 the actions and the versions that computed them."""
 
@@ -37,7 +37,7 @@ def main(folder: Path) -> None:
     for observation in np.load("observations.npy"):
         scope = {"observation": observation}
         with contextlib.redirect_stdout(io.StringIO()):
-            exec(code, scope)  # noqa: S102 - the README's snippet, as a user runs it
+            exec(code, scope)  # noqa: S102 - the documented snippet, as a user runs it
         snippet.append(np.asarray(scope["action"]).tolist())
     results["snippet"] = snippet
     (folder / "results.json").write_text(json.dumps(results))

@@ -97,14 +97,14 @@ def test_snntorch_recurrent_rewrite_is_wrong_and_the_workaround_is_right():
 
 
 def snippets() -> dict[str, str]:
-    """The README's consumer snippets (Deployment section, ``**Name version**`` then a python block), dedented."""
-    text = (DOCS.parent / "README.md").read_text()
+    """The consumer snippets of docs/nir-consumers.md (``**Name version**`` then a python block), dedented."""
+    text = (DOCS / "nir-consumers.md").read_text()
     blocks = re.findall(r"^  \*\*(\S+) [\d.]+\*\*.*?```python\n(.*?)^  ```", text, re.S | re.M)
     return {name.lower(): textwrap.dedent(code) for name, code in blocks}
 
 
 @pytest.mark.parametrize("consumer", ["norse", "snntorch", "spikingjelly"])
-def test_readme_snippets_run_as_written(tmp_path, monkeypatch, consumer):
+def test_documented_snippets_run_as_written(tmp_path, monkeypatch, consumer):
     code = snippets()[consumer]
     assert len(code.strip().splitlines()) <= 10
     policy = random_policy(intra="lateral+bias")
@@ -130,7 +130,7 @@ def sinabs_python() -> Path:
 
 def test_sinabs_runs_the_sinabs_target_as_predict(tmp_path):
     """Every case exported with ``--target sinabs``, read with nir 1.0.4 and run by Sinabs 3.1.3 (``sinabs_module``,
-    50 observations as one batch), and the README's Sinabs snippet as written: ``predict``'s actions to 1e-5."""
+    50 observations as one batch), and the documented Sinabs snippet as written: ``predict``'s actions to 1e-5."""
     python = sinabs_python()
     expected = {}
     for name, overrides in CASES.items():
