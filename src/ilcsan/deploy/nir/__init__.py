@@ -1,6 +1,6 @@
 """NIR export of a spiking actor, the reference interpreter, the host side and loaders for NIR consumers.
 
-``export_nir(policy, path)`` writes the graph (:mod:`.export`: layout, CLIF → CubaLIF, dt = 1e-4 s);
+``export_nir(policy, path)`` writes the graph (:mod:`.graph`: layout, CLIF → CubaLIF, dt = 1e-4 s);
 ``nir.read(path)`` gives it back; :func:`nir_action` runs it with :func:`simulate_nir` (:mod:`.interpreter`)
 and the host parts (:mod:`.host`); :mod:`.consumers` loads it into snnTorch, Norse, SpikingJelly or (target
 ``sinabs``, :mod:`.sinabs`) Sinabs and runs it there.
