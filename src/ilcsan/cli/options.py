@@ -212,7 +212,8 @@ def like_defaults(config: RunConfig) -> dict[str, Any]:
     ``ilcsan report`` places by its label, or with ``--table`` by its settings."""
     values: dict[str, Any] = {"task": config.task, "steps": config.steps, "label": config.label,
                               "preset": config.actor.preset}
-    values |= {name: getattr(config, name) for name in RUN_SETTINGS}  # contact forces unset: another --task's own
+    values |= {name: getattr(config, name) for name in RUN_SETTINGS}  # contact_forces None (the task's default)
+    # stays None, so that --like with another --task takes that task's default
     values |= {name: getattr(config.td3, name) for name in TD3_SETTINGS}
     for item in dataclasses.fields(ActorConfig):
         value = getattr(config.actor, item.name)

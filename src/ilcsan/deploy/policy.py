@@ -167,16 +167,17 @@ def _checkpoint_as_policy(data: dict[str, Any]) -> dict[str, Any]:
     config = data["config"]
     normalizer = RunningNormalizer(1, len(data["normalizer"]["mean"]))
     normalizer.load(0, data["normalizer"])
+    contact_forces = config.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES
     if "action_scale" in data and "action_offset" in data:
         scale, offset = data["action_scale"], data["action_offset"]
     else:
-        env = make_env(config["task"], contact_forces=config.get("contact_forces", RECORDED_BEFORE_CONTACT_FORCES))
+        env = make_env(config["task"], contact_forces=contact_forces)
         scale, offset = action_bounds(env)
         env.close()
     return {"actor_config": config["actor"], "state_dim": data["state_dim"], "action_dim": data["action_dim"],
             "action_scale": scale, "action_offset": offset, "obs_mean": normalizer.mean[0],
             "obs_std": normalizer.std[0], "obs_clip": normalizer.clip, "task": config["task"],
-            "contact_forces": config.get("contact_forces"),
+            "contact_forces": contact_forces,
             "step": data["step"], "seed": config.get("seed")}
 
 

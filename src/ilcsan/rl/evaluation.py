@@ -157,7 +157,6 @@ def evaluate_policy(policy, episodes: int = 10, seed: int = 0, task: str | None 
                         contact_forces=contact_forces)
 
 
-
 def random_policy_return(task: str, episodes: int = 5, seed: int = 0, contact_forces: str | None = None) -> float:
     """Average return of uniformly random actions: the floor a trained actor must clear."""
     env = make_env(task, contact_forces=contact_forces)
