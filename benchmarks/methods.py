@@ -1,9 +1,9 @@
-"""What the training methods after the paper cost: steps/s of ILC-SAN with each, measured side by side in one run.
+"""What the training methods and algorithms cost: steps/s of ILC-SAN with each, measured side by side in one run.
 
 Rows: plain ILC-SAN (TD3's target actor and Gaussian action noise), Proxy Target with K = 3 (default) and K = 1
-regression steps per update, and NoisySAN exploration; each compiled (float32) and eager, one torch thread,
-updates from the start and no evaluations (as benchmarks/speed.py). Ratios are to plain ILC-SAN of the same
-execution. Run it on an otherwise idle machine:
+regression steps per update, NoisySAN exploration, and the actor trained by DDPG and by SAC instead of TD3; each
+compiled (float32) and eager, one torch thread, updates from the start and no evaluations (as benchmarks/speed.py).
+Ratios are to plain ILC-SAN (TD3) of the same execution. Run it on an otherwise idle machine:
 
     .venv/bin/python benchmarks/methods.py --tasks Hopper
 """
@@ -20,8 +20,10 @@ from speed import cpu_model, training_speed
 METHODS = (("ILC-SAN (TD3 target, Gaussian action noise)", {}),
            ("+ Proxy Target, K = 3, lr 1e-3", {"target_actor": "proxy"}),
            ("+ Proxy Target, K = 1, lr 3e-3", {"target_actor": "proxy", "proxy_iterations": 1, "proxy_lr": 3e-3}),
-           ("+ NoisySAN exploration (pink noise in the neurons)", {"exploration": "noisy"}))
-"""(label, TD3 options) of each measured method."""
+           ("+ NoisySAN exploration (pink noise in the neurons)", {"exploration": "noisy"}),
+           ("trained by DDPG (one critic, actor step every update)", {"algorithm": "ddpg"}),
+           ("trained by SAC (mean and log-std populations, entropy tuning)", {"algorithm": "sac"}))
+"""(label, training options) of each measured method and algorithm."""
 
 
 def main() -> None:

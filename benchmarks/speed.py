@@ -106,7 +106,7 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
     from torch.utils._python_dispatch import TorchDispatchMode
 
     from ilcsan.compute.matmul import gaining_products, product_call, product_times
-    from ilcsan.rl.td3 import TD3Agent
+    from ilcsan.rl.algorithms import TD3
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -123,8 +123,8 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(threads)
     k = len(seeds)
-    agent = TD3Agent(actor_config(preset), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
-                     [0.0] * action_dim, seeds)
+    agent = TD3(actor_config(preset), TD3Config(), state_dim, action_dim, [1.0] * action_dim, [0.0] * action_dim,
+                seeds)
     generator = torch.Generator().manual_seed(0)
     batch = {"obs": torch.randn(k, 100, state_dim, generator=generator),
              "next_obs": torch.randn(k, 100, state_dim, generator=generator),
@@ -168,14 +168,15 @@ def best_float32_floor(task: str, preset: str, seeds: tuple[int, ...], threads: 
 
 
 def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], threads: int, steps: int,
-                   warmup: int, compiled: bool = True, matmul: str = "float32", **td3_options) -> float:
+                   warmup: int, compiled: bool = True, matmul: str = "float32", algorithm: str = "td3",
+                   **td3_options) -> float:
     """Environment steps per second per seed, including updates, after ``warmup`` steps; ``td3_options`` choose a
-    training method (e.g. ``target_actor="proxy"``)."""
+    training method (e.g. ``target_actor="proxy"``), ``algorithm`` the off-policy algorithm."""
     compile_mode = "on" if engine == "fast" and compiled else "off"
     td3 = TD3Config(start_steps=0, update_after=100, update_every=50, **td3_options)
     config = RunConfig(task=task, seeds=seeds, steps=warmup + steps + 1, eval_every=10**9, eval_episodes=1,
                        actor=actor_config(preset), td3=td3, engine=engine, threads=threads, compile=compile_mode,
-                       matmul=matmul)
+                       matmul=matmul, algorithm=algorithm)
     with tempfile.TemporaryDirectory() as folder:
         trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
         try:
@@ -274,12 +275,12 @@ def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[s
 
 def act_latency_us(task: str, calls: int = 3000) -> float:
     """Median µs of the training loop's batch-1 action (compiled ILC-SAN acting pass), one thread."""
-    from ilcsan.rl.td3 import TD3Agent
+    from ilcsan.rl.algorithms import TD3
 
     torch.set_num_threads(1)
     state_dim, action_dim = TASK_SIZES[task]
-    agent = TD3Agent(actor_config("ilc-san"), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
-                     [0.0] * action_dim, (0,), compile=True)
+    agent = TD3(actor_config("ilc-san"), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
+                [0.0] * action_dim, (0,), compile=True)
     state = np.random.default_rng(0).normal(size=(1, state_dim)).astype(np.float32)
     return median_call_us(lambda: agent.act(state), calls)
 

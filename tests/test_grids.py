@@ -44,8 +44,8 @@ def test_the_beyond_grid_sets_each_rows_training_method(tmp_path) -> None:
     runs = expand_grid(spec, tmp_path).runs
     methods = {(run.row.slug, run.config.actor.preset, run.config.td3.target_actor, run.config.td3.exploration)
                for run in runs}
-    assert methods == {("ilc-san", "ilc-san", "spiking", "gaussian"), ("ilc-san+proxy", "ilc-san", "proxy", "gaussian"),
-                       ("ilc-san+noisy", "ilc-san", "spiking", "noisy"), ("dan", "dan", "spiking", "gaussian")}
+    assert methods == {("ilc-san", "ilc-san", "polyak", "gaussian"), ("ilc-san+proxy", "ilc-san", "proxy", "gaussian"),
+                       ("ilc-san+noisy", "ilc-san", "polyak", "noisy"), ("dan", "dan", "polyak", "gaussian")}
     assert len(runs) == 20
 
 

@@ -257,12 +257,14 @@ def test_timing_both_paths_gives_every_distinct_product_two_positive_times():
     assert set(times) == set(products) and all(f32 > 0 and b16 > 0 for f32, b16 in times.values())
 
 
-@pytest.mark.parametrize(("preset", "options", "target"), [("ilc-san", {}, "spiking"), ("dan", {}, "spiking"),
-                                                         ("ilc-san", {}, "proxy"),
-                                                         ("ilc-san", {"encoder": "pop"}, "spiking")])
-def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, options, target, monkeypatch):
+@pytest.mark.parametrize(("preset", "options", "target", "algorithm"), [
+    ("ilc-san", {}, "polyak", "td3"), ("dan", {}, "polyak", "td3"), ("ilc-san", {}, "proxy", "td3"),
+    ("ilc-san", {"encoder": "pop"}, "polyak", "td3"), ("ilc-san", {}, "polyak", "ddpg"),
+    ("ilc-san", {}, "polyak", "sac"), ("dan", {}, "polyak", "sac")])
+def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, options, target, algorithm, monkeypatch):
     """The bf16 choice is made per product shape from ``run_products``: a shape missing from it would silently
-    stay float32. Records every product of a short run (updates, acting, evaluation, the proxy's fit)."""
+    stay float32. Records every product of a short run (updates, acting, evaluation, the proxy's fit) of each
+    algorithm."""
     import ilcsan.snn.ensemble as ensemble
 
     seen = set()
@@ -282,7 +284,7 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
     monkeypatch.setattr(ensemble._EnsembleAffine, "forward", staticmethod(recording_forward))
     monkeypatch.setattr(ensemble._EnsembleAffine, "backward", staticmethod(recording_backward))
     config = RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=160, eval_every=160, eval_episodes=2, threads=1,
-                       actor=actor_config(preset, hidden=(8,), **options), compile="off",
+                       actor=actor_config(preset, hidden=(8,), **options), compile="off", algorithm=algorithm,
                        td3=TD3Config(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),
                                      target_actor=target))
     trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)

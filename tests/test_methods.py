@@ -17,8 +17,8 @@ from torch import nn
 from ilcsan.config import EXPLORATION_PAPERS, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl.adam import Adam
+from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.methods import EXPLORATION_METHODS, Exploration, MethodContext, register_exploration, relative_cost
-from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import train
 
 
@@ -94,8 +94,8 @@ def test_its_loss_term_runs_inside_the_compiled_update_as_it_does_uncompiled(toy
 
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
     td3 = TD3Config(exploration="toy", critic_hidden=(16, 16))
-    eager = TD3Agent(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8))
-    compiled = TD3Agent(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8), compile=True)
+    eager = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8))
+    compiled = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8), compile=True)
     rng = np.random.default_rng(5)
     assert_same_updates(eager, compiled, [_random_batch(rng, 2, 16, 3, 2) for _ in range(6)], atol=2e-5)
     levels = [agent.exploration.module.level.detach() for agent in (eager, compiled)]

@@ -11,7 +11,7 @@ import torch
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
-from ilcsan.rl.td3 import TD3Agent
+from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import train
 from ilcsan.snn.actor import build_actor
 from ilcsan.snn.noise import NeuronNoise, autocorrelation, fft_length, window_covariance
@@ -20,8 +20,8 @@ SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
 NOISY = TD3Config(exploration="noisy", noisy_return_reference=100.0)
 
 
-def _agent(td3: TD3Config = NOISY, seeds=(0,), actor=SMALL_ACTOR, **options) -> TD3Agent:
-    return TD3Agent(actor, td3, 3, 2, [2.0, 1.0], [0.0, 0.5], seeds=seeds, episode_steps=50, **options)
+def _agent(td3: TD3Config = NOISY, seeds=(0,), actor=SMALL_ACTOR, **options) -> TD3:
+    return TD3(actor, td3, 3, 2, [2.0, 1.0], [0.0, 0.5], seeds=seeds, episode_steps=50, **options)
 
 
 def _random_noise(actor, batch: int, seed: int, scale: float = 0.3) -> NeuronNoise:
@@ -130,7 +130,7 @@ def test_the_actor_loss_adds_the_noise_penalty_weighted_by_the_return():
              "penalty_weights": torch.tensor([0.5])}
     plain = -agent.critic(batch["obs"], agent.actor(batch["obs"]), first_only=True).mean()
     sigma = exploration.decoder_sigma
-    loss = agent.program.actor_loss(batch)
+    loss = agent.actor_loss(batch)
     assert float(loss.detach()) == pytest.approx(float(plain.detach()) + 0.5 * float(sigma.detach().mean()) ** 2,
                                                  rel=1e-6)
     (gradient,) = torch.autograd.grad(loss, sigma)  # zero noise: only the penalty depends on σ_d
@@ -159,8 +159,8 @@ def test_a_compiled_noisy_agent_updates_like_the_eager_one():
     from test_training import assert_same_updates
 
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    eager = TD3Agent(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20)
-    compiled = TD3Agent(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20, compile=True)
+    eager = TD3(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20)
+    compiled = TD3(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20, compile=True)
     for agent in (eager, compiled):
         agent.exploration.module.weights = torch.tensor([0.8])
     rng = np.random.default_rng(4)

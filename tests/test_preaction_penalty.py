@@ -8,17 +8,17 @@ import pytest
 import torch
 
 from ilcsan.config import TD3Config, actor_config
-from ilcsan.rl.td3 import TD3Agent
+from ilcsan.rl.algorithms import TD3
 
 SMALL = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
 
 
-def _agent(preset: str, penalty: float, compile: bool = False) -> TD3Agent:
-    return TD3Agent(actor_config(preset, **SMALL[preset]), TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty),
+def _agent(preset: str, penalty: float, compile: bool = False) -> TD3:
+    return TD3(actor_config(preset, **SMALL[preset]), TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty),
                     3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=compile)
 
 
-def _batch(agent: TD3Agent, seed: int = 1) -> dict[str, torch.Tensor]:
+def _batch(agent: TD3, seed: int = 1) -> dict[str, torch.Tensor]:
     rng = np.random.default_rng(seed)
     arrays = {"obs": rng.normal(size=(2, 32, 3)), "action": rng.uniform(-1, 1, (2, 32, 2)),
               "reward": rng.normal(size=(2, 32)), "next_obs": rng.normal(size=(2, 32, 3)),
@@ -33,7 +33,7 @@ def test_the_penalty_adds_lambda_times_the_mean_squared_readout_of_each_seed(pre
     with torch.no_grad():
         readout = penalised.actor.run(batch["obs"]).readout  # (K, B, M), the pre-tanh output O
         expected = sum(0.25 * float((readout[k] ** 2).mean()) for k in range(2))
-        difference = penalised.program.actor_loss(batch) - plain.program.actor_loss(batch)
+        difference = penalised.actor_loss(batch) - plain.actor_loss(batch)
     assert expected > 0.01
     assert float(difference) == pytest.approx(expected, rel=1e-5)
 
@@ -47,7 +47,7 @@ def test_a_saturated_actor_gets_a_gradient_back_into_tanhs_range_only_from_the_p
         with torch.no_grad():
             agent.actor.decoder.bias.fill_(8.0)
         batch = _batch(agent)
-        agent.program.actor_loss(batch).backward()
+        agent.actor_loss(batch).backward()
         grads[penalty] = agent.actor.decoder.bias.grad.clone()
         readout = agent.actor.run(batch["obs"]).readout.detach()
     assert float(torch.tanh(readout).abs().min()) > 0.99999

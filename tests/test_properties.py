@@ -165,7 +165,7 @@ def command_lines(draw, command: str) -> list[str]:
 
 
 class _StubAgent:
-    """Stands in for TD3Agent: no weights are allocated, whatever the sizes."""
+    """Stands in for the algorithm: no weights are allocated, whatever the sizes."""
 
     def __init__(self, *_args, **_kwargs):
         self.actor = types.SimpleNamespace(engine=None)
@@ -221,7 +221,7 @@ def stubbed(monkeypatch, workspace):
     import ilcsan.rl.evaluation
     import ilcsan.rl.training
 
-    monkeypatch.setattr(ilcsan.rl.training, "TD3Agent", _StubAgent)
+    monkeypatch.setattr(ilcsan.rl.training, "build_algorithm", _StubAgent)
     monkeypatch.setattr(ilcsan.rl.training, "train", _stub_train)
     monkeypatch.setattr(ilcsan.rl.evaluation, "run_episodes", _one_action_episodes)
     monkeypatch.setattr(ilcsan.rl.evaluation, "random_policy_return", lambda *_a, **_k: 0.0)

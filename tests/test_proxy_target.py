@@ -12,23 +12,23 @@ import torch
 
 from ilcsan.config import PROXY_HIDDEN, RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
+from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.methods import PolyakTarget, ProxyTarget
-from ilcsan.rl.td3 import TD3Agent
 from ilcsan.rl.training import train
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
 PROXY_TD3 = TD3Config(target_actor="proxy", target_noise=0.0)
 
 
-def _agent(td3: TD3Config, seeds=(0,), actor=SMALL_ACTOR) -> TD3Agent:
-    return TD3Agent(actor, td3, 3, 2, [2.0, 1.0], [0.0, 0.5], seeds=seeds)
+def _agent(td3: TD3Config, seeds=(0,), actor=SMALL_ACTOR) -> TD3:
+    return TD3(actor, td3, 3, 2, [2.0, 1.0], [0.0, 0.5], seeds=seeds)
 
 
 def _states(rng, seeds: int, batch: int = 64) -> torch.Tensor:
     return torch.as_tensor(rng.normal(size=(seeds, batch, 3)), dtype=torch.float32)
 
 
-def _manual_target(agent: TD3Agent, target_actor, next_obs, reward, terminal):
+def _manual_target(agent: TD3, target_actor, next_obs, reward, terminal):
     """y = r + γ(1 − d) min_j Q'_j(s', π'(s')) without smoothing noise (target_noise = 0), bounds applied."""
     with torch.no_grad():
         action = target_actor(next_obs)
@@ -39,10 +39,10 @@ def _manual_target(agent: TD3Agent, target_actor, next_obs, reward, terminal):
 
 def test_the_proxy_is_a_continuous_mlp_and_the_spiking_target_is_gone():
     agent = _agent(PROXY_TD3)
-    assert isinstance(agent.target, ProxyTarget) and agent.actor_target is agent.target.module
-    assert [layer.out_features for layer in agent.target.module.mlp.layers] == [*PROXY_HIDDEN, 2]
-    assert all(p.requires_grad for p in agent.target.module.parameters())
-    assert isinstance(_agent(TD3Config()).target, PolyakTarget)
+    assert isinstance(agent.target_method, ProxyTarget) and agent.actor_target is agent.target_method.module
+    assert [layer.out_features for layer in agent.target_method.module.mlp.layers] == [*PROXY_HIDDEN, 2]
+    assert all(p.requires_grad for p in agent.target_method.module.parameters())
+    assert isinstance(_agent(TD3Config()).target_method, PolyakTarget)
 
 
 def test_the_proxy_learns_to_imitate_the_spiking_actor_and_leaves_it_unchanged():
@@ -52,13 +52,17 @@ def test_the_proxy_learns_to_imitate_the_spiking_actor_and_leaves_it_unchanged()
     held_out = _states(rng, 1, 256)
     with torch.no_grad():
         goal = agent.actor(held_out)
-    first = float(agent.target.loss(held_out, goal).detach())
+    first = float(agent.target_method.loss(held_out, goal).detach())
     for _ in range(100):
-        agent.target.fit(agent.actor, torch.stack([_states(rng, 1) for _ in range(3)]))
-    last = float(agent.target.loss(held_out, goal).detach())
+        agent.target_method.fit(agent.actor, torch.stack([_states(rng, 1) for _ in range(3)]))
+    last = float(agent.target_method.loss(held_out, goal).detach())
     assert last < 0.1 * first, (first, last)
     for name, value in agent.actor.state_dict().items():
         assert torch.equal(value, actor_before[name]), name
+
+
+def _batch(next_obs, noise, reward, terminal) -> dict[str, torch.Tensor]:
+    return {"next_obs": next_obs, "smoothing_noise": noise, "reward": reward, "terminal": terminal}
 
 
 def test_target_values_use_the_proxy_when_asked():
@@ -66,13 +70,13 @@ def test_target_values_use_the_proxy_when_asked():
     next_obs, reward = _states(rng, 1, 8), torch.ones(1, 8)
     terminal, noise = torch.zeros(1, 8), torch.zeros(1, 8, 2)
     proxy_agent = _agent(PROXY_TD3)
-    expected = _manual_target(proxy_agent, proxy_agent.target.module, next_obs, reward, terminal)
+    expected = _manual_target(proxy_agent, proxy_agent.target_method.module, next_obs, reward, terminal)
     with torch.no_grad():
-        got = proxy_agent.program.target_values(next_obs, noise, reward, terminal)
+        got = proxy_agent.target_values(_batch(next_obs, noise, reward, terminal))
         assert torch.allclose(got, expected)
         assert not torch.allclose(got, _manual_target(proxy_agent, proxy_agent.actor, next_obs, reward, terminal))
-        proxy_agent.target.module.mlp.layers[-1].bias.add_(0.3)  # a changed proxy changes the targets
-        assert not torch.allclose(proxy_agent.program.target_values(next_obs, noise, reward, terminal), got)
+        proxy_agent.target_method.module.mlp.layers[-1].bias.add_(0.3)  # a changed proxy changes the targets
+        assert not torch.allclose(proxy_agent.target_values(_batch(next_obs, noise, reward, terminal)), got)
 
 
 def test_target_values_use_the_soft_updated_spiking_target_otherwise():
@@ -83,7 +87,7 @@ def test_target_values_use_the_soft_updated_spiking_target_otherwise():
     assert type(agent.actor_target) is type(agent.actor)
     spiking_copy = copy.deepcopy(agent.actor)
     with torch.no_grad():
-        got = agent.program.target_values(next_obs, noise, reward, terminal)
+        got = agent.target_values(_batch(next_obs, noise, reward, terminal))
     assert torch.allclose(got, _manual_target(agent, spiking_copy, next_obs, reward, terminal))
 
 
@@ -147,15 +151,15 @@ def test_a_compiled_proxy_agent_updates_like_the_eager_one():
     steps."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
     td3 = TD3Config(target_actor="proxy", proxy_iterations=2)
-    eager = TD3Agent(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
-    compiled = TD3Agent(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
+    eager = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
+    compiled = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
     from test_training import assert_same_updates
 
     rng = np.random.default_rng(4)
     assert_same_updates(eager, compiled, [_random_batch(rng, 1, 2) for _ in range(4)], atol=1e-4)
-    assert compiled.target.program.direct, "the regression steps run as one program, called directly"
-    assert compiled.program.critic_step.direct and compiled.program.delayed_step.direct
-    for before, after in zip(eager.target.adam.tensors(), compiled.target.adam.tensors(), strict=True):
+    assert compiled.target_method.program.direct, "the regression steps run as one program, called directly"
+    assert compiled.critic_step.direct and compiled.delayed_step.direct
+    for before, after in zip(eager.target_method.adam.tensors(), compiled.target_method.adam.tensors(), strict=True):
         for ours, theirs in zip(before, after, strict=True):  # the proxy's Adam state too
             torch.testing.assert_close(ours, theirs, atol=1e-6, rtol=1e-4)
 

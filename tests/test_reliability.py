@@ -329,16 +329,16 @@ def test_diverging_loss_stops_the_run(tmp_path, capsys, faulty):
 
 
 def test_nan_loss_is_caught_at_the_update_chunk_it_appears(tmp_path, capsys, monkeypatch):
-    from ilcsan.rl.update import TD3Update
+    from ilcsan.rl.algorithms import TD3
 
-    original, calls = TD3Update.critic_loss, {"n": 0}
+    original, calls = TD3.critic_loss, {"n": 0}
 
     def poisoned(self, batch, target, critic=None):
         calls["n"] += 1
         loss = original(self, batch, target, critic)
         return loss * float("nan") if calls["n"] > 75 else loss  # updates 1-75: steps 100-150; 76-100: step 175
 
-    monkeypatch.setattr(TD3Update, "critic_loss", poisoned)
+    monkeypatch.setattr(TD3, "critic_loss", poisoned)
     code, _, err = cli(capsys, "train", "--task", "Pendulum-v1", *FAULT_OPTIONS, "--out", tmp_path / "run")
     assert_stopped_cleanly(tmp_path / "run", code, err, "step 175:", "TD3 loss diverged", "critic nan")
 
@@ -354,7 +354,7 @@ def no_training(monkeypatch):
     def refuse(*_args, **_kwargs):
         raise AssertionError("an agent was built before the output folder was checked")
 
-    monkeypatch.setattr("ilcsan.rl.training.TD3Agent", refuse)
+    monkeypatch.setattr("ilcsan.rl.training.build_algorithm", refuse)
 
 
 def test_output_below_a_file_is_reported_before_training(tmp_path, capsys, no_training):

@@ -14,7 +14,7 @@ from ilcsan.compute.matmul import MatmulPath, onednn_available
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl import training
-from ilcsan.rl.td3 import TD3Agent
+from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import Trainer, train
 
 TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
@@ -33,7 +33,7 @@ def read_metrics(path):
 
 
 def test_critic_target_uses_min_of_twins_and_ignores_truncation():
-    agent = TD3Agent(actor_config("dan", hidden=(8,)), TD3Config(target_noise=0.0), 3, 1, [2.0], [0.0], seeds=(0,))
+    agent = TD3(actor_config("dan", hidden=(8,)), TD3Config(target_noise=0.0), 3, 1, [2.0], [0.0], seeds=(0,))
     batch = {"obs": torch.zeros(1, 4, 3), "action": torch.zeros(1, 4, 1), "reward": torch.ones(1, 4),
              "next_obs": torch.ones(1, 4, 3), "terminal": torch.tensor([[0.0, 1.0, 0.0, 1.0]])}
     with torch.no_grad():
@@ -43,15 +43,14 @@ def test_critic_target_uses_min_of_twins_and_ignores_truncation():
         q = agent.critic(batch["obs"], batch["action"])
     expected = ((q - expected_target.unsqueeze(1)) ** 2).mean(-1).sum()
     with torch.no_grad():
-        target = agent.program.target_values(batch["next_obs"], torch.zeros(1, 4, 1), batch["reward"],
-                                             batch["terminal"])
-    assert torch.allclose(agent.program.critic_loss(batch, target), expected)
+        target = agent.target_values({**batch, "smoothing_noise": torch.zeros(1, 4, 1)})
+    assert torch.allclose(agent.critic_loss(batch, target), expected)
 
 
 def test_each_seed_of_an_ensemble_updates_like_a_single_run():
     config = actor_config("ilc-san", hidden=(16, 16))
-    many = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(4, 11))
-    single = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(11,))
+    many = TD3(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(4, 11))
+    single = TD3(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(11,))
     rng = np.random.default_rng(0)
     for _ in range(4):
         arrays = {"obs": rng.normal(size=(2, 32, 3)), "action": rng.uniform(-1, 1, (2, 32, 2)),
@@ -77,9 +76,9 @@ def _random_batch(rng, seeds, batch, state_dim, action_dim):
 
 
 def test_first_critic_equals_the_first_twin_of_every_seed():
-    from ilcsan.rl.td3 import TwinCritic
+    from ilcsan.rl.algorithms import Critics
 
-    critic = TwinCritic(3, 2, [8, 8], seeds=(0, 1, 2))
+    critic = Critics(3, 2, [8, 8], seeds=(0, 1, 2))
     generator = torch.Generator().manual_seed(0)
     state, action = torch.randn(3, 5, 3, generator=generator), torch.randn(3, 5, 2, generator=generator)
     both = critic(state, action)
@@ -97,24 +96,24 @@ def _restore_process_settings():
 
 @pytest.mark.parametrize(("preset", "path"), [("ilc-san", "aten"), ("dan", "aten"), ("ilc-san", "onednn")])
 def test_compiled_update_program_equals_the_eager_update(preset, path):
-    """The one definition of the update (:mod:`ilcsan.rl.update`) compiled as one program per variant (fullgraph=True:
-    any graph break fails) leaves the same actor, critic, targets and Adam states as the same functions run
-    uncompiled, over 12 updates (6 delayed), for 2 stacked seeds, on each float32 matmul path (eager, the paths
-    agree: tests/test_matmul.py). (With Proxy Target: tests/test_proxy_target.py; NoisySAN:
+    """The one definition of the update (:mod:`ilcsan.rl.algorithms.td3`) compiled as one program per variant
+    (fullgraph=True: any graph break fails) leaves the same actor, critic, targets and Adam states as the same
+    functions run uncompiled, over 12 updates (6 delayed), for 2 stacked seeds, on each float32 matmul path (eager,
+    the paths agree: tests/test_matmul.py). (With Proxy Target: tests/test_proxy_target.py; NoisySAN:
     tests/test_noisy_exploration.py.)"""
     if path == "onednn" and not onednn_available():
         pytest.skip("this torch has no oneDNN")
     small = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
     config = actor_config(preset, **small[preset])
     td3 = TD3Config(critic_hidden=(16, 16))
-    eager = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), matmul=MatmulPath(path))
-    compiled = TD3Agent(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True,
+    eager = TD3(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), matmul=MatmulPath(path))
+    compiled = TD3(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True,
                         matmul=MatmulPath(path))
-    assert eager.program.critic_step.__func__ is type(eager.program)._critic_step  # the same function, uncompiled
+    assert eager.critic_step.__func__ is TD3._critic_step  # the same function, uncompiled
     rng = np.random.default_rng(1)
     batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
     assert_same_updates(eager, compiled, batches, atol=2e-5)
-    assert compiled.program.critic_step.direct and compiled.program.delayed_step.direct
+    assert compiled.critic_step.direct and compiled.delayed_step.direct
     for adam in ("actor_adam", "critic_adam"):
         for before, after in zip(*(getattr(agent, adam).tensors() for agent in (eager, compiled)), strict=True):
             for ours, theirs in zip(before, after, strict=True):
@@ -325,7 +324,7 @@ def test_compiled_acting_calls_inductor_directly_and_sees_weights_changed_in_pla
     """The acting program resolves every input of the compiled graph (so it runs without dynamo's frame entry)
     and, holding the parameters themselves, acts with weights changed in place as the eager actor does."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    agent = TD3Agent(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(0, 1), compile=True)
+    agent = TD3(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(0, 1), compile=True)
     state = np.random.default_rng(0).normal(size=(2, 3)).astype(np.float32)
     before = agent.act(state)
     (program,) = agent.actor_fn.programs.values()

@@ -65,8 +65,18 @@ COLLAPSE_RETURN = 100.0
 about 40)."""
 BACKENDS: dict[str, str] = {"local": "a pool of worker processes on this machine", "ray": "a Ray cluster"}
 """``ilcsan reproduce --backend``: where a grid's runs execute."""
+ALGORITHM_PAPERS: dict[str, str] = {
+    "td3": "TD3 (Fujimoto, van Hoof, Meger, ICML 2018): twin critics, target policy smoothing, delayed actor "
+           "updates; how the ILC-SAN paper trains every actor",
+    "ddpg": "DDPG (Lillicrap et al., ICLR 2016) as TD3's paper re-implements it: one critic, no target policy "
+            "smoothing, the actor and targets updated at every critic update",
+    "sac": "SAC (Haarnoja et al. 2018, arXiv 1812.05905): the output populations decode a mean and a log-std of a "
+           "tanh-squashed Gaussian, twin critics, automatic entropy tuning; acts deterministically when evaluated",
+}
+"""The off-policy algorithms that train an actor (``--algorithm``), each with its paper
+(:mod:`ilcsan.rl.algorithms`)."""
 TARGET_ACTOR_PAPERS: dict[str, str] = {
-    "spiking": "the soft-updated copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
+    "polyak": "the Polyak-averaged (soft-updated) copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
     "proxy": "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)",
 }
 """The actor in TD3's target values (``--target-actor``), each with its paper; a registered method
@@ -163,17 +173,36 @@ class Switch(NamedTuple):
 
 def setting(default: Any, help: str, *, choices: tuple[str, ...] | Mapping[str, Any] | None = None,
             flag: str | None = None, aliases: tuple[str, ...] = (), minimum: int | None = None,
-            bounds: str | None = None, switches: tuple[Switch, ...] = ()) -> Any:
+            bounds: str | None = None, switches: tuple[Switch, ...] = (),
+            renamed: Mapping[str, str] | None = None) -> Any:
     """A dataclass field described once for the command line and for :func:`check_settings`.
 
     ``flag`` is the CLI name when it is not the field name with dashes; ``minimum`` bounds whole numbers;
     ``bounds`` is ``"decay"`` (a factor in [0, 1]), ``"positive"`` or ``"non-negative"`` for real numbers (None,
     where a field allows it, passes); ``switches`` replace
-    the field's own switch by switches that each set part of it.
+    the field's own switch by switches that each set part of it; ``renamed`` maps the old spellings of choices to
+    today's (:func:`current_spellings`).
     """
     metadata = {"help": help, "choices": choices, "flag": flag, "aliases": aliases, "minimum": minimum,
-                "bounds": bounds, "switches": switches}
+                "bounds": bounds, "switches": switches, "renamed": dict(renamed or {})}
     return field(default=default, metadata=metadata)
+
+
+def current_spellings(config: Any) -> None:
+    """Replace, in a frozen config just made, every choice written in an old spelling by today's (a config file,
+    grid or script of an earlier version keeps working; :func:`renamed_note` tells a user who typed one)."""
+    for item in described_fields(type(config)):
+        value = getattr(config, item.name)
+        if isinstance(value, str) and value in item.metadata["renamed"]:
+            object.__setattr__(config, item.name, item.metadata["renamed"][value])
+
+
+def renamed_note(config_class: type, values: Mapping[str, Any]) -> str | None:
+    """One line for the old spellings among ``values`` (by field name) as a user gave them, or None."""
+    notes = [f"{flag_of(item)} {values[item.name]} is now called {item.metadata['renamed'][values[item.name]]}"
+             for item in described_fields(config_class)
+             if isinstance(values.get(item.name), str) and values[item.name] in item.metadata["renamed"]]
+    return f"note: {'; '.join(notes)} (the old name still works)" if notes else None
 
 
 def flag_of(setting_field: dataclasses.Field) -> str:
@@ -361,9 +390,10 @@ class TD3Config:
     update_after: int = setting(1_000, "first TD3 update at this step", minimum=0)
     update_every: int = setting(50, "TD3 updates run in chunks of this many, one per environment step, "
                                     "as in the authors' code", minimum=1)
-    target_actor: str = setting("spiking", "actor in TD3's target values: the soft-updated spiking target (the paper), "
-                                           "or Proxy Target's continuous proxy imitating the online actor (Xu et al. "
-                                           "2025; spiking actors only)", choices=TARGET_ACTOR_PAPERS)
+    target_actor: str = setting("polyak", "actor in TD3's and DDPG's target values: polyak, the Polyak-averaged copy "
+                                          "of the actor (the paper), or proxy, Proxy Target's continuous proxy "
+                                          "imitating the online actor (Xu et al. 2025; spiking actors only)",
+                                choices=TARGET_ACTOR_PAPERS, renamed={"spiking": "polyak"})
     proxy_iterations: int = setting(3, "Proxy Target: regression steps of the proxy per TD3 update (K; 1 with "
                                        "--proxy-lr 3e-3 is the cheap setting)", minimum=1)
     proxy_lr: float = setting(1e-3, "Proxy Target: the proxy's Adam learning rate", bounds="positive")
@@ -378,10 +408,17 @@ class TD3Config:
                                       "scale starts at sigma_init/sqrt(M)", bounds="positive")
     noisy_beta: float = setting(1.0, "NoisySAN: spectral exponent of the noise, power ~ 1/f^beta (0 white, 1 "
                                      "pink: the paper's choice, 2 brown)", bounds="non-negative")
+    entropy_lr: float = setting(3e-4, "SAC: Adam learning rate of the entropy coefficient's logarithm log α (SAC's "
+                                      "paper: 3e-4)", bounds="positive")
+    initial_entropy_coefficient: float = setting(1.0, "SAC: the entropy coefficient α at the start; it then tunes "
+                                                      "itself toward the target entropy −M", bounds="positive")
     noisy_return_reference: float | None = setting(
         None, "NoisySAN: the return R* at which the noise penalty's weight max(0, R)/R* reaches 1 (default per "
               "paper task: Hopper 4000, Walker2d/Ant/Humanoid 6000, HalfCheetah 12000, ...; needed for other "
               "tasks)", bounds="positive")
+
+    def __post_init__(self) -> None:
+        current_spellings(self)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)
@@ -396,6 +433,13 @@ class TD3Config:
         return cls(**values)
 
 
+METHOD_SETTINGS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma",
+                                    "noisy_beta", "noisy_return_reference", "preaction_penalty", "entropy_lr",
+                                    "initial_entropy_coefficient")
+"""The :class:`TD3Config` fields that choose or tune how the actor is trained (a grid row's own settings, part of a
+run's identity in reports); the others are the protocol every row shares."""
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """Everything that defines a training run."""
@@ -407,6 +451,10 @@ class RunConfig:
     eval_episodes: int = setting(10, "episodes per evaluation", minimum=1)
     actor: ActorConfig = field(default_factory=ActorConfig)
     td3: TD3Config = field(default_factory=TD3Config)
+    algorithm: str = setting("td3", "the off-policy algorithm that trains the actor: td3 (the paper's), ddpg (one "
+                                    "critic, no target smoothing or delay) or sac (squashed Gaussian actor: the "
+                                    "output populations decode a mean and a log-std; entropy tuned)",
+                             choices=ALGORITHM_PAPERS)
     contact_forces: str | None = setting(None, "a MuJoCo task's external contact forces. zeroed: as the paper's "
                                                "simulator read them (mujoco-py 2.1): zeros in the state and in the "
                                                "rewards computed from them; simulated: MuJoCo's. Default: zeroed for "

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TD3Config
+from ..config import METHOD_SETTINGS, RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TD3Config
 from ..errors import UserError
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
@@ -60,6 +60,8 @@ class RunRecord:
     """``eval_return_mean`` at each of ``steps``."""
     td3: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
     """The run's TD3 settings as config.json holds them (empty for runs written without them)."""
+    algorithm: str = field(default="td3", hash=False, compare=False)
+    """The off-policy algorithm that trained the actor (config.json; runs written before the choice: TD3)."""
     diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
     """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.snn.diagnostics.DIAGNOSTICS`) at each of ``steps``,
     NaN where it was not measured."""
@@ -170,7 +172,7 @@ def read_run(directory: str | Path) -> RunRecord:
     return RunRecord(
         path=run.path, task=task, seed=seed, label=label, table=table, row=row, actor=actor,
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
-        finished=finished, steps=steps, returns=returns, td3=td3,
+        finished=finished, steps=steps, returns=returns, td3=td3, algorithm=str(config.get("algorithm") or "td3"),
         diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
         wall_seconds=_wall_seconds(result), provenance=_provenance(run),
         contact_forces=str(config.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES),
@@ -240,15 +242,19 @@ def _parse_result(result: Mapping[str, Any],
     return best_return, best_step, steps_done, steps_total, finished
 
 
-METHOD_SETTINGS = ("target_actor", "exploration", "preaction_penalty")
-"""The TD3 settings that change how the actor is trained (the rows of Table beyond differ in them)."""
+def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any], algorithm: str = "td3") -> str:
+    """Algorithm, actor settings and training method (:data:`~ilcsan.config.METHOD_SETTINGS`) as one comparable
+    key; a setting a saved config lacks (saved before it existed) counts as its default, as it does when the run is
+    loaded."""
+    method = {key: _current(key, td3.get(key, getattr(TD3Config, key))) for key in METHOD_SETTINGS}
+    return json.dumps({"algorithm": algorithm, "actor": _complete_actor(actor), "method": method}, sort_keys=True,
+                      default=str)
 
 
-def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any]) -> str:
-    """Actor settings and training method (:data:`METHOD_SETTINGS`) as one comparable key; a setting a saved
-    config lacks (saved before it existed) counts as its default, as it does when the run is loaded."""
-    method = {key: td3.get(key, getattr(TD3Config, key)) for key in METHOD_SETTINGS}
-    return json.dumps({"actor": _complete_actor(actor), "method": method}, sort_keys=True, default=str)
+def _current(name: str, value: Any) -> Any:
+    """A saved TD3 setting in today's spelling (a choice renamed since: :func:`~ilcsan.config.current_spellings`)."""
+    renamed = TD3Config.__dataclass_fields__[name].metadata.get("renamed", {})
+    return renamed.get(value, value) if isinstance(value, str) else value
 
 
 def _complete_actor(actor: Mapping[str, Any]) -> dict[str, Any]:
@@ -264,7 +270,7 @@ def row_identity(run: RunRecord) -> tuple:
     """A grid run's row is its (table, row) tag; any other run's is its label, actor settings and method."""
     if run.table and run.row:
         return run.table, run.row
-    return run.table, run.label, configuration_key(run.actor, run.td3)
+    return run.table, run.label, configuration_key(run.actor, run.td3, run.algorithm)
 
 
 def _identity(run: RunRecord) -> tuple:

@@ -11,8 +11,8 @@
 * the best mean of each column (and the best APR) is marked best.
 
 A run that ``ilcsan reproduce`` did not write (no table/row tags) is placed in a table's row by its label, else
-by its configuration: the same actor settings, all of them, and the same training method
-(:data:`~ilcsan.analysis.collect.METHOD_SETTINGS`) as the row's — so ``ilcsan train --task Hopper --actor
+by its configuration: the same algorithm, the same actor settings, all of them, and the same training method
+(:data:`~ilcsan.config.METHOD_SETTINGS`) as the row's — so ``ilcsan train --task Hopper --actor
 ilc-san`` lands in Table perf's ILC-SAN (E_pop_det) row.
 
 A cell carries the paper's value for its (table, row, task) where the paper has one; a task the paper
@@ -200,7 +200,7 @@ def _row_of_foreign_run(run: RunRecord, groups: Mapping[str, Any], by_label: Map
     """The row of the asked table that a run not tagged with it joins, if any: an untagged run by its row slug or
     label, else by its configuration; a run of another grid by its configuration alone (its row and label name that
     grid's rows), so that a grid's ILC-SAN seeds count in Table perf's ILC-SAN cell."""
-    key = configuration_key(run.actor, run.td3)
+    key = configuration_key(run.actor, run.td3, run.algorithm)
     if run.table is None:
         return (run.row if run.row in groups else by_label.get(run.label)) or by_configuration.get(key)
     return by_configuration.get(key)

@@ -58,9 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_train_command(subparsers) -> None:
-    """``ilcsan train``: the task, the actor switches and the run and TD3 options, all from the config."""
-    train = subparsers.add_parser("train", help="train an actor with TD3",
-                                description="Train an actor with TD3 and a deep twin critic.")
+    """``ilcsan train``: the task, the actor switches and the run and training options, all from the config."""
+    train = subparsers.add_parser("train", help="train an actor (TD3, DDPG or SAC)",
+                                description="Train an actor with a deep critic: TD3 (the paper's), DDPG or SAC.")
     train.add_argument("--task", default=RunConfig.task,
                        help=f"paper short name (see `ilcsan tasks`), a Gymnasium id, or your own task as "
                             f"module:id (its module is imported first; default: {RunConfig.task})")

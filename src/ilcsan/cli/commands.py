@@ -60,7 +60,7 @@ def _note_a_kept_label(config: RunConfig, like: RunConfig, path: str) -> None:
     from ..analysis.collect import configuration_key
 
     def key(run: RunConfig) -> str:
-        return configuration_key(run.actor.to_dict(), run.td3.to_dict())
+        return configuration_key(run.actor.to_dict(), run.td3.to_dict(), run.algorithm)
 
     custom = like.label not in (None, like.actor.preset)  # a preset's own name is every such run's default label
     if custom and config.label == like.label and key(config) != key(like):

@@ -6,11 +6,21 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 from ..arguments import int_at_least, positive_int
-from ..config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of, setting_type
+from ..config import (
+    ActorConfig,
+    RunConfig,
+    TD3Config,
+    actor_config,
+    check_settings,
+    flag_of,
+    renamed_note,
+    setting_type,
+)
 from ..errors import UserError
 
 # ------------------------------------------------------------------------------------ helpers
@@ -131,11 +141,12 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
             if options["dest"] != "preset"}
 
 
-RUN_SETTINGS = ("contact_forces", "eval_every", "eval_episodes", "device", "engine", "threads", "compile", "matmul",
-                "checkpoint_minutes")
+RUN_SETTINGS = ("algorithm", "contact_forces", "eval_every", "eval_episodes", "device", "engine", "threads", "compile",
+                "matmul", "checkpoint_minutes")
 """The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
 TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size", "preaction_penalty", "target_actor",
-                "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma", "noisy_beta", "noisy_return_reference")
+                "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma", "noisy_beta", "noisy_return_reference",
+                "entropy_lr", "initial_entropy_coefficient")
 """The :class:`~ilcsan.config.TD3Config` fields ``train`` offers."""
 
 
@@ -154,6 +165,9 @@ def build_run_config(args: argparse.Namespace, task: str | None = None):
     no flag (γ, τ, the critic, ...) are the liked run's."""
     like = getattr(args, "like_config", None)
     td3 = {name: getattr(args, name) for name in TD3_SETTINGS}
+    note = renamed_note(TD3Config, td3)
+    if note:
+        print(note, file=sys.stderr)
     config = RunConfig(
         task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
         actor=actor_config(args.preset, **_actor_settings(args, like)),

@@ -20,9 +20,10 @@ from torch import nn
 from torch.func import functional_call
 
 
-def value_and_grads(loss: Callable[..., torch.Tensor], *args, wrt: tuple[int, ...] = (0,)):
-    """``torch.func.grad_and_value(loss, argnums=wrt)(*args)`` for arguments ``wrt`` that are lists of tensors:
-    (the gradients, one list per argument in ``wrt``, or the one list; the loss, detached).
+def value_and_grads(loss: Callable[..., torch.Tensor], *args, wrt: tuple[int, ...] = (0,), has_aux: bool = False):
+    """``torch.func.grad_and_value(loss, argnums=wrt, has_aux=has_aux)(*args)`` for arguments ``wrt`` that are lists
+    of tensors: (the gradients, one list per argument in ``wrt``, or the one list; the loss, detached). With
+    ``has_aux`` the loss function returns (loss, aux) and the second item is (loss, aux detached).
 
     Written with ``torch.autograd.grad`` on detached copies made leaves, which dynamo traces into one graph when
     ``torch._dynamo.config.trace_autograd_ops`` is on (:class:`DirectProgram` turns it on while it traces).
@@ -35,13 +36,15 @@ def value_and_grads(loss: Callable[..., torch.Tensor], *args, wrt: tuple[int, ..
         for index in wrt:
             args[index] = [tensor.detach().requires_grad_() for tensor in args[index]]
         value = loss(*args)
+        value, aux = value if has_aux else (value, None)
         leaves = [tensor for index in wrt for tensor in args[index]]
         flat = list(torch.autograd.grad(value, leaves, materialize_grads=True)) if leaves else []
     groups = []
     for index in wrt:
         groups.append(flat[:len(args[index])])
         flat = flat[len(args[index]):]
-    return (tuple(groups) if len(wrt) > 1 else groups[0]), value.detach()
+    grads = tuple(groups) if len(wrt) > 1 else groups[0]
+    return grads, ((value.detach(), aux.detach()) if has_aux else value.detach())
 
 
 def as_function(module: nn.Module, tensors: Sequence[torch.Tensor], names: Sequence[str]) -> Callable:
@@ -190,16 +193,24 @@ class CompiledPerShape:
     evaluation (K, E, N) and Proxy Target's regression targets each get their own program. Call it under
     ``torch.no_grad()`` only."""
 
-    def __init__(self, module: nn.Module):
+    def __init__(self, module: nn.Module, function: Callable | None = None):
         self.module, self.programs = module, {}
+        self.function = function or module.forward
+        """What runs: the module's forward, or a function of its inputs that reads the module (e.g. its readout)."""
 
     def __call__(self, *inputs: torch.Tensor) -> torch.Tensor:
         inputs = tuple(x.contiguous() for x in inputs)  # a program assumes the layout it was compiled for
         key = tuple((x.shape, x.dtype) for x in inputs)
         program = self.programs.get(key)
         if program is None:
-            program = self.programs[key] = DirectProgram(self.module.forward, module_tensors(self.module))
+            program = self.programs[key] = DirectProgram(self.function, module_tensors(self.module))
         return program(*inputs)
+
+
+def as_program(function: Callable, constants: Sequence[torch.Tensor], compile: bool) -> Callable:
+    """``function`` as one :class:`DirectProgram` (``constants`` the tensors it reads as attributes) when
+    ``compile``, else ``function`` itself, run eagerly: one definition either way."""
+    return DirectProgram(function, constants) if compile else function
 
 
 COMPILE_RECOMPILE_LIMIT = 64

@@ -20,6 +20,8 @@ from ..compute.programs import CompiledPerShape
 from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig
 from ..errors import UserError
 from ..files import safe_torch_load
+from ..rl.algorithms import algorithm_class
+from ..rl.algorithms.base import first_readout
 from ..rl.normalizer import RunningNormalizer
 from ..rl.tasks import action_bounds, make_env
 from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT
@@ -123,7 +125,10 @@ class Policy(HostSide):
         return self.actor.run(torch.as_tensor(self.normalize(batch)).unsqueeze(0), engine)
 
 
-def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor], path: Path) -> Policy:
+def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor], path: Path,
+                      readouts: int = 1) -> Policy:
+    """The policy of a policy file's or checkpoint's fields and actor tensors, each checked before anything is built;
+    ``readouts`` per action dimension of those tensors (a SAC checkpoint's actor has 2, of which the first acts)."""
     config = ActorConfig.from_dict(data["actor_config"])
     state_dim, action_dim = int(data["state_dim"]), int(data["action_dim"])
     scale = np.asarray(data["action_scale"], dtype=np.float64)
@@ -140,6 +145,9 @@ def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor
     # make us build a huge network
     with torch.device("meta"):
         skeleton = build_actor(config, state_dim, action_dim, scale, offset, seeds=(0,))
+    if readouts > 1 and isinstance(actor_params, dict):  # a SAC checkpoint's actor: its mean's populations
+        actor_params = first_readout({name: value for name, value in actor_params.items() if torch.is_tensor(value)},
+                                     skeleton)
     for name, param in skeleton.named_parameters():
         value = actor_params.get(name) if isinstance(actor_params, dict) else None
         if not torch.is_tensor(value):
@@ -195,7 +203,8 @@ def _load(path: str | Path) -> Policy:
         if data["format"] == POLICY_FORMAT:
             return _params_to_policy(data, data["actor"], file)
         if data["format"] == CHECKPOINT_FORMAT:
-            return _params_to_policy(_checkpoint_as_policy(data), data["actor"], file)
+            readouts = algorithm_class(data["config"].get("algorithm") or "td3").readouts
+            return _params_to_policy(_checkpoint_as_policy(data), data["actor"], file, readouts)
     except UserError:
         raise
     except (KeyError, TypeError, AttributeError, ValueError, IndexError, RuntimeError) as error:

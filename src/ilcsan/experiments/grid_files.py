@@ -14,7 +14,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..config import ActorConfig, TD3Config, actor_config, check_settings, described_fields, setting_type
+from ..config import (
+    METHOD_SETTINGS,
+    ActorConfig,
+    TD3Config,
+    actor_config,
+    check_settings,
+    described_fields,
+    setting_type,
+)
 from ..errors import UserError
 from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
@@ -48,8 +56,7 @@ _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
 
 _TOP_KEYS = tuple(item.name for item in dataclasses.fields(TableSpec))  # name, caption, tasks, rows, protocol
 _ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
-ROW_TD3_KEYS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma",
-                                 "noisy_beta", "noisy_return_reference")
+ROW_TD3_KEYS: tuple[str, ...] = METHOD_SETTINGS
 """The TD3 settings a grid row may set (its training method); the grid's other TD3 settings are shared."""
 
 

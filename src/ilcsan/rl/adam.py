@@ -47,7 +47,7 @@ class Adam:
     moments (zeros) and its step count (0, a float32 scalar), created with the module.
 
     ``tensors()`` are what :func:`adam_` steps (the update program reads them anew at each call, since loading a
-    checkpoint replaces them); ``step(grads)`` is one step on the parameters themselves.
+    checkpoint replaces them), ``views`` the parameters it steps.
     """
 
     def __init__(self, module: nn.Module, lr: float):
@@ -63,10 +63,6 @@ class Adam:
     def tensors(self) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
         """(first moments, second moments, step counts), one per parameter in module order."""
         return self.averages, self.squares, self.steps
-
-    @torch.no_grad()
-    def step(self, grads: Sequence[torch.Tensor]) -> None:
-        adam_(self.views, grads, *self.tensors(), lr=self.lr)
 
     # ---------------------------------------------------------------------------- checkpoints
     def seed_state(self, index: int, rows: int) -> dict[str, dict[str, torch.Tensor]]:

@@ -82,7 +82,7 @@ def replay_diagnostics(agent, replay, normalizer, seeds: Sequence[int], step: in
     random streams are untouched."""
     generators = [np.random.default_rng([DIAGNOSTIC_SALT, seed, step]) for seed in seeds]
     states = normalizer.normalize(replay.sample_states(generators, DIAGNOSTIC_STATES))
-    return diagnose_actor(agent.actor, torch.as_tensor(states, device=agent.device))
+    return diagnose_actor(agent.deployable_actor(), torch.as_tensor(states, device=agent.device))
 
 
 def run_episodes(act, task: str, episodes: int, seed: int = 0, batched: bool = False,

@@ -21,24 +21,28 @@ from ..compute.matmul import (
 )
 from ..config import PROXY_HIDDEN, SPIKING_ENCODERS, RunConfig
 from ..snn.diagnostics import DIAGNOSTIC_STATES
+from .algorithms import algorithm_class
 
 
 def run_products(config: RunConfig, state_dim: int, action_dim: int,
                  episode_steps: int | None = None) -> dict[Product, float]:
     """The (a, w) shapes of the products of this run (:data:`~ilcsan.compute.matmul.Product`), each with how many
-    times the run computes it per environment step once TD3 updates (one update a step; ``update_every`` steps, then
-    as many updates). For each actor layer: acting's forward product over T rows (every step); an update's products
-    over T·B rows: the forward of the spiking target actor (every update, unless Proxy Target replaces it) and the
-    forward and both backward products of the actor update (every ``policy_delay``-th); evaluation's forward over T·E
-    rows (at most ``episode_steps`` steps every ``eval_every``; 1000, Gymnasium's MuJoCo limit, when not given); the
-    diagnostics' over T·1000 rows (once per evaluation); with Proxy Target, the actor's forward over T·B·K_proxy rows
-    for the proxy's regression targets (every update). T is 1 for DAN and for a first layer whose input is not a spike
-    train. For every critic layer: the 2K critics' three products (the critic loss) and their forward again (the
-    target critics), every update; the K first critics' three products for the actor loss (every ``policy_delay``-th
-    update). With Proxy Target, the proxy's three products K_proxy times an update and its forward once more (as π')."""
+    times the run computes it per environment step once updates run (one update a step; ``update_every`` steps, then
+    as many updates), for the run's algorithm (:mod:`ilcsan.rl.algorithms`: its critics per seed C, the critics its
+    actor loss evaluates, its policy delay d, its actor's readouts per action). For each actor layer: acting's forward
+    product over T rows (every step); an update's products over T·B rows: the forward of the actor giving the next
+    actions (TD3's and DDPG's target actor unless Proxy Target replaces it, SAC's own actor; every update) and the
+    forward and both backward products of the actor update (every d-th); evaluation's forward over T·E rows (at most
+    ``episode_steps`` steps every ``eval_every``; 1000, Gymnasium's MuJoCo limit, when not given); the diagnostics'
+    over T·1000 rows (once per evaluation); with Proxy Target, the actor's forward over T·B·K_proxy rows for the
+    proxy's regression targets (every update). T is 1 for DAN and for a first layer whose input is not a spike
+    train. For every critic layer: the C·K critics' three products (the critic loss) and their forward again (the
+    target critics), every update; the three products of the critics the actor loss evaluates (every d-th update).
+    With Proxy Target, the proxy's three products K_proxy times an update and its forward once more (as π')."""
+    algorithm = algorithm_class(config.algorithm)
     seeds, td3, actor = len(config.seeds), config.td3, config.actor
     batch, proxy = td3.batch_size, td3.target_actor == "proxy"
-    delayed = 1.0 / td3.policy_delay
+    delayed = 1.0 / algorithm.policy_delay(td3)
     evaluations = 1.0 / config.eval_every
     timesteps = actor.timesteps if actor.network == "spiking" else 1
     counts: dict[Product, float] = {}
@@ -49,7 +53,7 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
 
     forward_rows = [(1, 1.0), (config.eval_episodes, (episode_steps or 1000) * evaluations),
                     (DIAGNOSTIC_STATES, evaluations)] + ([(batch * td3.proxy_iterations, 1.0)] if proxy else [])
-    for index, (d_in, d_out) in enumerate(pairwise(actor.layer_sizes(state_dim, action_dim))):
+    for index, (d_in, d_out) in enumerate(pairwise(actor.layer_sizes(state_dim, algorithm.readouts * action_dim))):
         steps = timesteps if index > 0 or actor.encoder in SPIKING_ENCODERS else 1
         update = layer_products(seeds, steps * batch, d_in, d_out)
         add(update, delayed)
@@ -57,10 +61,10 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
         for rows, times in forward_rows:
             add(layer_products(seeds, steps * rows, d_in, d_out)[:1], times)
     for d_in, d_out in pairwise([state_dim + action_dim, *td3.critic_hidden, 1]):
-        twin = layer_products(2 * seeds, batch, d_in, d_out)
-        add(twin, 1.0)
-        add(twin[:1], 1.0)
-        add(layer_products(seeds, batch, d_in, d_out), delayed)
+        every = layer_products(algorithm.critics * seeds, batch, d_in, d_out)
+        add(every, 1.0)
+        add(every[:1], 1.0)
+        add(layer_products(algorithm.actor_loss_critics * seeds, batch, d_in, d_out), delayed)
     if proxy:
         for d_in, d_out in pairwise([state_dim, *PROXY_HIDDEN, action_dim]):
             fit = layer_products(seeds, batch, d_in, d_out)

@@ -7,6 +7,7 @@ import os
 
 from ..config import RunConfig
 from ..errors import UserError
+from .algorithms import algorithm_class
 
 
 def replay_bytes(state_dim: int, action_dim: int, capacity: int) -> int:
@@ -19,18 +20,19 @@ def memory_estimate(config: RunConfig, state_dim: int, action_dim: int) -> dict[
     one update's activations (measured: 5-14x the layers' outputs over T steps; 4x is counted) and the
     full replay buffers. Used to refuse, before anything starts, a run that cannot fit in memory."""
     actor, td3, seeds = config.actor, config.td3, len(config.seeds)
-    sizes = actor.layer_sizes(state_dim, action_dim)
+    algorithm = algorithm_class(config.algorithm)
+    sizes = actor.layer_sizes(state_dim, algorithm.readouts * action_dim)
     if actor.network == "deep":
         timesteps, extra = 1, 0
     else:  # intra-layer weights and biases, decoder, encoder centres and widths
         timesteps = actor.timesteps
-        extra = action_dim * actor.population_out * (actor.population_out + 3) + 2 * sizes[0]
+        extra = algorithm.readouts * action_dim * actor.population_out * (actor.population_out + 3) + 2 * sizes[0]
     critic = [state_dim + action_dim, *td3.critic_hidden, 1]
 
     def parameters(widths: list[int]) -> int:
         return sum(a * b + b for a, b in zip(widths[:-1], widths[1:], strict=False))
 
-    weights = 4 * seeds * 5 * (parameters(sizes) + extra + 2 * parameters(critic))
+    weights = 4 * seeds * 5 * (parameters(sizes) + extra + algorithm.critics * parameters(critic))
     activations = 4 * 4 * seeds * td3.batch_size * timesteps * sum(sizes)
     replay = seeds * replay_bytes(state_dim, action_dim, min(td3.replay_size, config.steps))
     return {"networks": weights + activations, "replay": replay}

@@ -1,7 +1,8 @@
-"""Training runs: TD3 (Fujimoto et al. 2018) around the actor, as the paper trains every actor (Section III-E).
+"""Training runs: an off-policy algorithm around the actor — TD3 (Fujimoto et al. 2018), as the paper trains every
+actor (Section III-E), or DDPG or SAC (:mod:`ilcsan.rl.algorithms`).
 
-:meth:`Trainer.train` is TD3's pseudocode: act (uniform random for ``start_steps``, then π(s) plus
-Gaussian noise), step the environments, store the transitions, update when due, evaluate when due.
+:meth:`Trainer.train` is their shared pseudocode: act (uniform random for ``start_steps``, then the algorithm's
+exploring action), step the environments, store the transitions, update when due, evaluate when due.
 K seeds train together in stacked weights, each with its own environment, replay rows, normaliser
 statistics, random generators, checkpoint and metrics, laid out as K ordinary runs (``OUT`` for one seed,
 ``OUT/seed<k>`` for several; the folder's files are listed in :mod:`ilcsan.runs.directory`).
@@ -33,6 +34,7 @@ from ..runs import provenance
 from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
 from ..runs.directory import RunDirectory, RunFileError, run_directories
 from ..snn.diagnostics import EvaluationActions
+from .algorithms import build_algorithm
 from .callbacks import Callbacks, ProgressReport, TensorBoardLog
 from .evaluation import replay_diagnostics, run_lockstep, training_evaluation_seed
 from .matmul_choice import choose_matmul_path, describe_matmul_choice, recorded_matmul_path
@@ -41,7 +43,6 @@ from .ram import check_memory
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
 from .tasks import make_envs
-from .td3 import TD3Agent
 from .validation import validate_run
 
 LOSS_LIMIT = 1e12
@@ -75,10 +76,8 @@ class Trainer:
             matmul, self.matmul = kept or choose_matmul_path(config, state_dim, action_dim,
                                                              self.environments.episode_steps)
             log(describe_matmul_choice(self.matmul))
-            self.agent = TD3Agent(config.actor, config.td3, state_dim, action_dim, self.environments.action_scale,
-                                  self.environments.action_offset, config.seeds, config.device,
-                                  compile=config.compiles(), engine=config.engine, task=config.task,
-                                  episode_steps=self.environments.episode_steps, matmul=matmul)
+            self.agent = build_algorithm(config, state_dim, action_dim, self.environments.action_scale,
+                                         self.environments.action_offset, self.environments.episode_steps, matmul)
             self.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim,
                                        min(config.td3.replay_size, config.steps))
             self.normalizer = RunningNormalizer(len(config.seeds), state_dim)
@@ -114,7 +113,7 @@ class Trainer:
 
     # ----------------------------------------------------------------------------- the loop
     def train(self) -> list[dict[str, Any]]:
-        """Run TD3 until ``steps`` (an interrupted run continues from its checkpoint); returns each seed's
+        """Train until ``steps`` (an interrupted run continues from its checkpoint); returns each seed's
         result."""
         config = self.config
         losses: dict[str, float] = {}
@@ -143,14 +142,14 @@ class Trainer:
         return minutes > 0 and self._clock.since_checkpoint() >= 60.0 * minutes
 
     def train_step(self) -> dict[str, float] | None:
-        """One environment step per seed: act, step, store, and TD3's updates when they are due."""
+        """One environment step per seed: act, step, store, and the updates when they are due."""
         td3 = self.config.td3
         transition, finished = self.environments.step(self._explore(), step=self.step + 1)
         self.replay.add(*transition)
         self.normalizer.update(transition.next_obs)
         for index in finished:
             self.environments.reset(index, step=self.step + 1)
-            self.agent.exploration.end_episode(index)
+            self.agent.end_episode(index)
             self.normalizer.update(self.environments.observations, mask=np.arange(len(self.environments)) == index)
         self.step += 1
         if self.step >= td3.update_after and self.step % td3.update_every == 0:
@@ -158,8 +157,8 @@ class Trainer:
         return None
 
     def _explore(self) -> np.ndarray:
-        """Uniform random actions during the first start_steps, then the exploration method's (TD3's: π(s) + N(0, σ²)
-        clipped to the bounds; :mod:`ilcsan.rl.methods`)."""
+        """Uniform random actions during the first start_steps, then the algorithm's (TD3's: π(s) + N(0, σ²) clipped
+        to the bounds, or its exploration method's, :mod:`ilcsan.rl.methods`; SAC's: a sample of its policy)."""
         if self.step < self.config.td3.start_steps:
             scale, offset = self.environments.action_scale, self.environments.action_offset
             return np.stack([rng.uniform(offset - scale, offset + scale) for rng in self.rngs])
@@ -173,13 +172,13 @@ class Trainer:
         return self.agent.act(self.normalizer.normalize(observations))
 
     def _learn(self) -> dict[str, float]:
-        """update_every TD3 updates, each on a fresh minibatch per seed; returns the mean losses per seed."""
+        """update_every updates, each on a fresh minibatch per seed; returns the mean losses per seed."""
         td3 = self.config.td3
         critic_total, actor_total, actor_count = 0.0, 0.0, 0
-        self.agent.exploration.before_updates(self.evaluations)
+        self.agent.before_updates(self.evaluations)
         for _ in range(td3.update_every):
             arrays = sample_minibatch(self.replay, self.normalizer, self.rngs, td3)
-            arrays.update(self.agent.target.extra_samples(self.replay, self.normalizer, self.rngs, td3))
+            arrays.update(self.agent.extra_samples(self.replay, self.normalizer, self.rngs))
             losses = self.agent.update(self.agent.to_batch(arrays))
             critic_total = critic_total + losses["critic_loss"]
             if losses["actor_loss"] is not None:
@@ -258,7 +257,7 @@ class Trainer:
             self.rngs[index].bit_generator.state = state["rng"]["numpy"]
             self.evaluations[index] = list(state["evaluations"])
             if not self.environments.restore(index, as_arrays(state["env"]), self.step):
-                self.agent.exploration.end_episode(index)  # a new episode (NoisySAN: with a new noise series)
+                self.agent.end_episode(index)  # a new episode (NoisySAN: with a new noise series)
                 self.log(f"note: {self.config.task} cannot restore a running episode; seed {self.config.seeds[index]} "
                          "resumes with a new episode (not bit-identical)")
 
@@ -266,11 +265,11 @@ class Trainer:
         """The deployable actor of seed ``index``: weights, config, frozen normaliser, action bounds."""
         config, environments, normalizer = self.config, self.environments, self.normalizer
         return {
-            "task": config.task, "contact_forces": config.task_contact_forces(),
+            "task": config.task, "contact_forces": config.task_contact_forces(), "algorithm": config.algorithm,
             "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
             "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
             "action_offset": torch.as_tensor(environments.action_offset),
-            "actor": slice_params(self.agent.actor, index, 1),
+            "actor": slice_params(self.agent.deployable_actor(), index, 1),
             "obs_mean": torch.as_tensor(normalizer.mean[index]), "obs_std": torch.as_tensor(normalizer.std[index]),
             "obs_clip": float(normalizer.clip), "step": self.step, "seed": config.seeds[index],
         }

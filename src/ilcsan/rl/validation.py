@@ -8,7 +8,7 @@ import torch
 
 from ..config import RunConfig, check_settings
 from ..errors import UserError
-from .methods import check_methods, exploration_method, target_actor_method
+from .algorithms import algorithm_class
 
 
 def validate_run(config: RunConfig) -> None:
@@ -16,9 +16,7 @@ def validate_run(config: RunConfig) -> None:
     (:func:`~ilcsan.config.check_settings`), then what needs this process (seeds, threads, the device)."""
     check_settings(config)
     check_settings(config.td3)
-    check_methods(config.td3, config.actor.network)
-    exploration_method(config.td3.exploration).check(config.task, config.td3)
-    target_actor_method(config.td3.target_actor).check(config.task, config.td3)
+    algorithm_class(config.algorithm).check(config)
     if not config.seeds:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):

@@ -4,7 +4,7 @@ The run and its parts give and take their own state (``seed_state``/``load_seed_
 where they go, the checks a checkpoint must pass to resume, the per-seed slicing helpers the parts use
 (:func:`slice_params`, :func:`load_params`), and the two-phase commit.
 
-K seeds train in stacked weights (:mod:`ilcsan.rl.td3`), but each seed's folder holds an ordinary
+K seeds train in stacked weights (:mod:`ilcsan.rl.algorithms`), but each seed's folder holds an ordinary
 one-seed checkpoint: its slice of every weight and of Adam's moments (the critic's slices are twice as
 wide: seed k owns twins 2k and 2k+1), its normaliser, replay segments, random generators and running
 episode. A checkpoint also holds the action bounds, so a policy is rebuilt from it without an environment.
@@ -30,7 +30,7 @@ from .directory import CHECKPOINT, PROVENANCE, RunDirectory, RunFileError
 CHECKPOINT_FORMAT = "ilcsan-checkpoint"
 POLICY_FORMAT = "ilcsan-policy"
 FORMAT_VERSION = 1
-RESUME_SETTINGS = ("task", "actor", "td3", "eval_every", "eval_episodes")
+RESUME_SETTINGS = ("task", "algorithm", "actor", "td3", "eval_every", "eval_episodes")
 """The settings a resumed run must share with its checkpoint. The budget (``steps``) may change: a run resumed
 with a larger ``--steps`` continues to it exactly as a run started with that budget would have (nothing in
 training depends on the budget but where it stops), so a finished 200 000-step run extends to 1 000 000."""

@@ -1,7 +1,7 @@
 """Training methods as strategies: how the actor explores, and which actor gives TD3's target values.
 
-TD3 (:mod:`ilcsan.rl.td3`) has two places where the methods that followed ILC-SAN change it, and each is a strategy
-object with a small set of hooks, chosen by name in the run's TD3 settings:
+TD3 and DDPG (:mod:`ilcsan.rl.algorithms.td3`) have two places where the methods that followed ILC-SAN change them,
+and each is a strategy object with a small set of hooks, chosen by name in the run's TD3 settings:
 
 - **exploration** (``td3.exploration``, :class:`Exploration`): how the actor acts while training (TD3's Gaussian
   action noise; NoisySAN's noise inside the neurons), what the actor's loss adds, and any parameters of its own;
@@ -80,6 +80,6 @@ def relative_cost(td3: TD3Config) -> float:
 
 register_exploration("gaussian", GaussianActionNoise)
 register_exploration("noisy", NoisySAN)
-register_target_actor("spiking", PolyakTarget)
+register_target_actor("polyak", PolyakTarget)
 register_target_actor("proxy", ProxyTarget)
 

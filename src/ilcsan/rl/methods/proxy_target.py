@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
-from ...compute.programs import DirectProgram, as_function, module_tensors, value_and_grads
+from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
 from ...config import PROXY_HIDDEN, TD3Config, actor_config
 from ...snn.actor import DeepActor, build_actor
 from ..adam import Adam, adam_
@@ -59,8 +59,7 @@ class ProxyTarget(TargetActor):
         self.module, self.iterations, self.lr = proxy, td3.proxy_iterations, td3.proxy_lr
         self.adam = Adam(proxy, td3.proxy_lr)
         self.names = self.adam.names
-        self.program = (DirectProgram(self._regression_steps, module_tensors(proxy)) if context.compile
-                        else self._regression_steps)
+        self.program = as_program(self._regression_steps, module_tensors(proxy), context.compile)
 
     @classmethod
     def relative_cost(cls, td3: TD3Config) -> float:

@@ -1,0 +1,177 @@
+"""SAC (Haarnoja et al., "Soft Actor-Critic Algorithms and Applications", arXiv 1812.05905) for every actor.
+
+The actor's output populations decode 2M values (:attr:`SAC.readouts` = 2): a mean μ and a log-std
+log σ (clamped to [−20, 2]) per action dimension, for the squashed Gaussian a = offset + scale · tanh(u),
+u = μ + σ ε, ε ~ N(0, I). Its log-density, by the change of variables through tanh,
+
+    log π(a | s) = Σ_m [log N(ε_m; 0, 1) − log σ_m − log(1 − tanh²(u_m))],
+
+with log(1 − tanh² u) = 2 (log 2 − u − softplus(−2u)) (the action scale's constant Jacobian is left out, as in SAC's
+code). One update of K seeds, every environment step of an update chunk:
+
+* critics: y = r + γ(1 − d) (min_j Q'_j(s', a') − α log π(a' | s')), a' ~ π(· | s'); one Adam step on
+  Σ_j (Q_j(s, a) − y)²;
+* actor: one Adam step on mean_b (α log π(ã | s) − min_j Q_j(s, ã)), ã ~ π(· | s) reparameterised, with the updated
+  critics (plus λ·mean(μ²) with the pre-action penalty λ > 0);
+* entropy coefficient: one Adam step of log α on −mean_b log α (log π(ã | s) + H̄), H̄ = −M the target entropy
+  (SAC's automatic tuning), with the same sample ã;
+* targets: θ' ← τθ + (1 − τ)θ'.
+
+α of the update is the one before its step. There is no target actor. Exploration samples from π; evaluation and
+deployment act with the mean, a = offset + scale · tanh(μ), so the deployed actor keeps only the mean's populations
+(:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.deployable_actor`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ...compute.programs import CompiledPerShape, as_function, as_program, module_tensors, value_and_grads
+from ...config import RunConfig, TD3Config
+from ...errors import UserError
+from ...runs.checkpoint import load_params, slice_params
+from ..adam import Adam, adam_
+from .base import OffPolicyAlgorithm
+
+LOG_STD_BOUNDS = (-20.0, 2.0)
+"""The log-std's clamp (SAC's code and PopSAN's SAC)."""
+LOG_2 = math.log(2.0)
+HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+class EntropyCoefficient(nn.Module):
+    """log α per seed (K,), the only parameter of SAC's entropy tuning."""
+
+    def __init__(self, seeds: int, initial: float, device: torch.device):
+        super().__init__()
+        self.log_alpha = nn.Parameter(torch.full((seeds,), math.log(initial), device=device))
+
+
+class SAC(OffPolicyAlgorithm):
+    """K SAC agents (see the module docstring)."""
+
+    readouts = 2
+    actor_loss_critics = 2
+
+    @classmethod
+    def check(cls, config: RunConfig) -> None:
+        td3, defaults = config.td3, TD3Config()
+        for flag, name, default in (("--exploration", td3.exploration, defaults.exploration),
+                                    ("--target-actor", td3.target_actor, defaults.target_actor)):
+            if name != default:
+                raise UserError(f"{flag} {name} is a method for TD3 and DDPG; SAC explores with its own stochastic "
+                                f"actor and has no target actor: drop {flag}, or use --algorithm td3")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.entropy = EntropyCoefficient(len(self.seeds), self.td3.initial_entropy_coefficient, self.device)
+        self.entropy_adam = Adam(self.entropy, self.td3.entropy_lr)
+        self.target_entropy = -float(self.action_dim)
+        self.actor_names = [name for name, _ in self.actor.named_parameters()]
+        self.critic_names = [name for name, _ in self.critic.named_parameters()]
+        self.readout_fn = CompiledPerShape(self.actor, self._readout) if self.compiled else self._readout
+        constants = [self.scale, self.offset]
+        for module in (self.actor, self.critic, self.critic_target, self.entropy):
+            constants += module_tensors(module)
+        self.update_step = as_program(self._update_step, constants, self.compiled)
+
+    def _readout(self, state: torch.Tensor) -> torch.Tensor:
+        """The actor's 2M decoded values (μ, raw log σ) for normalised states (K, B, N) → (K, B, 2M)."""
+        return self.actor(state, with_preaction=True)[1]
+
+    # ------------------------------------------------------------------ the training loop's
+    @torch.no_grad()
+    def explore(self, normalized_state: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        """a = offset + scale · tanh(μ + σ ε) per seed, ε from the seed's numpy generator."""
+        readout = self.readout_fn(torch.as_tensor(normalized_state[:, None, :], device=self.device))[:, 0]
+        mean, log_std = readout.cpu().numpy().astype(np.float64).reshape(len(rngs), 2, self.action_dim).swapaxes(0, 1)
+        noise = np.stack([rng.standard_normal(self.action_dim) for rng in rngs])
+        std = np.exp(np.clip(log_std, *LOG_STD_BOUNDS))
+        return self.action_offset + self.action_scale * np.tanh(mean + std * noise)
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor | None]:
+        """One SAC update (the module docstring); the noise of a' and ã is drawn here from the seeds' generators."""
+        self.updates += 1
+        size = batch["obs"].shape[1]
+        batch = {**batch, "next_noise": self.standard_noise(size), "noise": self.standard_noise(size)}
+        critic_loss, actor_loss = self.run(self.update_step, batch)
+        return {"critic_loss": critic_loss, "actor_loss": actor_loss}
+
+    # ------------------------------------------------------------------------------- the losses
+    def sample(self, actor: Callable, states: torch.Tensor,
+               noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(a, log π(a | s), μ) for states (K, B, N) and standard noise ε (K, B, M): a reparameterised sample."""
+        readout = actor(states, with_preaction=True)[1]
+        mean, log_std = readout[..., :self.action_dim], readout[..., self.action_dim:]
+        log_std = log_std.clamp(*LOG_STD_BOUNDS)
+        pre_tanh = mean + log_std.exp() * noise
+        gaussian = -0.5 * noise ** 2 - log_std - HALF_LOG_2PI
+        squash = 2.0 * (LOG_2 - pre_tanh - F.softplus(-2.0 * pre_tanh))
+        log_prob = (gaussian - squash).sum(dim=-1)
+        return self.offset + self.scale * torch.tanh(pre_tanh), log_prob, mean
+
+    def target_values(self, batch: dict[str, torch.Tensor], actor: Callable, target_critic: Callable,
+                      alpha: torch.Tensor) -> torch.Tensor:
+        """y = r + γ(1 − d)(min_j Q'_j(s', a') − α log π(a' | s')), shape (K, B)."""
+        next_action, next_log_prob, _ = self.sample(actor, batch["next_obs"], batch["next_noise"])
+        soft_q = target_critic(batch["next_obs"], next_action).min(dim=1).values - alpha[:, None] * next_log_prob
+        return batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * soft_q
+
+    def critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
+        """Σ_k Σ_j mean_b (Q_j(s, a) − y)²."""
+        q_values = as_function(self.critic, critic, self.critic_names)(batch["obs"], batch["action"])
+        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
+
+    def actor_loss(self, actor: list, critic: list, alpha: torch.Tensor,
+                   batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """(Σ_k mean_b (α log π(ã | s) − min_j Q_j(s, ã)) [+ λ mean μ²], log π(ã | s) (K, B))."""
+        action, log_prob, mean = self.sample(as_function(self.actor, actor, self.actor_names), batch["obs"],
+                                             batch["noise"])
+        q_value = as_function(self.critic, critic, self.critic_names)(batch["obs"], action).min(dim=1).values
+        loss = (alpha[:, None] * log_prob - q_value).mean(dim=-1).sum()
+        penalty = self.td3.preaction_penalty
+        if penalty:
+            loss = loss + penalty * (mean ** 2).mean(dim=(-2, -1)).sum()
+        return loss, log_prob
+
+    def _update_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        alpha = tensors["entropy"][0].exp()
+        with torch.no_grad():
+            target = self.target_values(batch, as_function(self.actor, tensors["actor"], self.actor_names),
+                                        as_function(self.critic_target, tensors["critic_target"], self.critic_names),
+                                        alpha)
+        grads, critic_loss = value_and_grads(self.critic_loss, tensors["critic"], batch, target)
+        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
+        grads, (actor_loss, log_prob) = value_and_grads(self.actor_loss, tensors["actor"], tensors["critic"], alpha,
+                                                        batch, has_aux=True)
+        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=self.config.learning_rate)
+        # ∂/∂log α of −mean_b log α (log π + H̄), per seed
+        entropy_grads = [-(log_prob + self.target_entropy).mean(dim=-1)]
+        adam_(tensors["entropy"], entropy_grads, *tensors["entropy_adam"], lr=self.td3.entropy_lr)
+        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], self.td3.tau)
+        return critic_loss, actor_loss
+
+    def tensors(self) -> dict[str, list]:
+        return {**super().tensors(), "entropy": self.entropy_adam.views, "entropy_adam": self.entropy_adam.tensors()}
+
+    @property
+    def alpha(self) -> np.ndarray:
+        """Each seed's entropy coefficient α."""
+        return self.entropy.log_alpha.detach().exp().cpu().numpy()
+
+    # --------------------------------------------------------------------------- checkpoints
+    def seed_state(self, index: int) -> dict[str, Any]:
+        return {**super().seed_state(index), "entropy": slice_params(self.entropy, index, 1),
+                "entropy_optimizer": self.entropy_adam.seed_state(index, 1)}
+
+    def load_seed_states(self, states: Sequence[dict[str, Any]]) -> None:
+        super().load_seed_states(states)
+        load_params(self.entropy, [state["entropy"] for state in states], "entropy coefficient")
+        self.entropy_adam.load_seed_states([state["entropy_optimizer"] for state in states])

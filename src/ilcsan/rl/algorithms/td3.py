@@ -1,0 +1,234 @@
+"""TD3 (Fujimoto et al. 2018) with a deep twin critic, as the paper trains every actor (Section III-E), and DDPG as
+TD3's paper re-implements it: the same update with TD3's three changes switched off.
+
+One update of K seeds, in TD3's order:
+
+* the critic step: y = r + γ(1 − d) min_j Q'_j(s', ã), ã = clip(π'(s') + clip(σ̃ε, −c, c), low, high) (target policy
+  smoothing), and one Adam step of the critics on Σ_j (Q_j(s, a) − y)² (clipped double-Q);
+* every ``policy_delay``-th update (delayed policy updates) the same, then one Adam step of the actor on
+  −Q_1(s, π(s)) with the *updated* critic (plus what the exploration method adds, e.g. NoisySAN's noise and
+  penalty, whose own parameters step beside the actor's; plus the pre-action penalty λ·mean(O²) when λ > 0), then
+  θ' ← τθ + (1 − τ)θ' for the target critic and, when the target actor follows the actor, for the target actor.
+
+DDPG (:class:`DDPG`): one critic (min over one is itself), no smoothing (ã = π'(s')), the actor and targets at every
+update. How the actor explores and which actor is π' are training methods (:mod:`ilcsan.rl.methods`): TD3's
+Gaussian action noise and Polyak-averaged target by default; NoisySAN and Proxy Target are the others.
+
+Each variant (critic step; critic and actor step) is one function of the agent's tensors, run eagerly or as one
+compiled program; the networks run through ``torch.func.functional_call`` on tensors passed in
+(:func:`~ilcsan.compute.programs.as_function`), the gradients come from :func:`~ilcsan.compute.programs.
+value_and_grads`, Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the agent's own tensors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
+from ...config import RunConfig, TD3Config
+from ..adam import adam_
+from ..methods import MethodContext, check_methods, exploration_method, target_actor_method
+from .base import OffPolicyAlgorithm
+
+
+class TD3(OffPolicyAlgorithm):
+    """K TD3 agents; the exploration and target-actor methods are the run's (``td3.exploration``,
+    ``td3.target_actor``)."""
+
+    smoothing = True
+    """Target policy smoothing: noise on the target action."""
+
+    @classmethod
+    def check(cls, config: RunConfig) -> None:
+        check_methods(config.td3, config.actor.network)
+        exploration_method(config.td3.exploration).check(config.task, config.td3)
+        target_actor_method(config.td3.target_actor).check(config.task, config.td3)
+
+    @classmethod
+    def policy_delay(cls, td3: TD3Config) -> int:
+        return td3.policy_delay
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        context = MethodContext(self.actor, self.config, self.td3, self.task, self.episode_steps, tuple(self.seeds),
+                                self.state_dim, self.action_dim, self.action_scale, self.action_offset, self.device,
+                                self.compiled, self.matmul)
+        self.target_method = target_actor_method(self.td3.target_actor)(context)
+        self.exploration = exploration_method(self.td3.exploration)(context)
+        self.actor_names = [name for name, _ in self.actor.named_parameters()]
+        self.critic_names = [name for name, _ in self.critic.named_parameters()]
+        self.target_actor_names = [name for name, _ in self.actor_target.named_parameters()]
+        self._actor_target_views: list[torch.Tensor] | None = None
+        constants = [self.scale, self.offset]
+        for module in (self.actor, self.critic, self.actor_target, self.critic_target, self.exploration.module):
+            constants += module_tensors(module) if module is not None else []
+        self.critic_step = as_program(self._critic_step, constants, self.compiled)
+        self.delayed_step = as_program(self._delayed_step, constants, self.compiled)
+
+    @property
+    def actor_target(self) -> nn.Module:
+        """π' in the target values: the target actor method's network (:mod:`ilcsan.rl.methods`)."""
+        return self.target_method.module
+
+    # ------------------------------------------------------------------ the training loop's
+    def explore(self, normalized_state: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        """The exploration method's actions (TD3's: π(s) + N(0, σ²) clipped to the bounds)."""
+        return self.exploration.explore(self, normalized_state, rngs)
+
+    def end_episode(self, index: int) -> None:
+        self.exploration.end_episode(index)
+
+    def before_updates(self, evaluations) -> None:
+        self.exploration.before_updates(evaluations)
+
+    def extra_samples(self, replay, normalizer, rngs) -> dict[str, np.ndarray]:
+        return self.target_method.extra_samples(replay, normalizer, rngs, self.td3)
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor | None]:
+        """One update (the module docstring). The target actor method runs first (Proxy Target fits its proxy on
+        ``batch["proxy_obs"]``); on an actor step the exploration method adds what the actor loss needs (NoisySAN's
+        noise)."""
+        self.target_method.before_update(self, batch)
+        self.updates += 1
+        delayed = self.updates % self.policy_delay(self.td3) == 0
+        if delayed:
+            batch = {**batch, **self.exploration.update_inputs(batch["obs"].shape[1])}
+        if self.smoothing:
+            batch = {**batch, "smoothing_noise": self.standard_noise(batch["next_obs"].shape[1])}
+        if delayed:
+            critic_loss, actor_loss = self.run(self.delayed_step, batch)
+            return {"critic_loss": critic_loss, "actor_loss": actor_loss}
+        return {"critic_loss": self.run(self.critic_step, batch), "actor_loss": None}
+
+    # ------------------------------------------------------------------------------- the losses
+    def target_values(self, batch: dict[str, torch.Tensor], target_actor: Callable | None = None,
+                      target_critic: Callable | None = None) -> torch.Tensor:
+        """y = r + γ (1 − terminal) min_j Q'_j(s', ã), shape (K, B); ã = clip(π'(s') + clip(σ̃ε, −c, c), low, high)
+        with smoothing (ε ~ N(0, 1) is ``batch["smoothing_noise"]``), else π'(s')."""
+        td3 = self.td3
+        next_obs = batch["next_obs"]
+        next_action = (target_actor or self.actor_target)(next_obs)
+        if self.smoothing:
+            noise = (batch["smoothing_noise"] * td3.target_noise).clamp(-td3.noise_clip, td3.noise_clip) * self.scale
+            next_action = torch.maximum(torch.minimum(next_action + noise, self.offset + self.scale),
+                                        self.offset - self.scale)
+        target_q = (target_critic or self.critic_target)(next_obs, next_action).min(dim=1).values
+        return batch["reward"] + td3.gamma * (1.0 - batch["terminal"]) * target_q
+
+    def critic_loss(self, batch: dict[str, torch.Tensor], target: torch.Tensor,
+                    critic: Callable | None = None) -> torch.Tensor:
+        """Σ_k Σ_j mean_b (Q_j(s, a) − y)² for the targets y (K, B)."""
+        q_values = (critic or self.critic)(batch["obs"], batch["action"])
+        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
+
+    def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
+                   critic: Callable | None = None, method_parameters: list | None = None) -> torch.Tensor:
+        """Σ_k −mean_b Q_1(s, π(s)) plus the exploration method's terms, π(s) as the method evaluates it
+        (:meth:`~ilcsan.rl.methods.Exploration.actor_action`); ``method_parameters`` are the method's tensors.
+        With ``td3.preaction_penalty`` λ > 0 it adds Σ_k λ mean_{b,m} O², O the pre-tanh output of that same π(s)."""
+        exploration = self.exploration
+        parameters = method_parameters if method_parameters is not None else module_parameters(exploration.module)
+        actor = actor or self.actor
+        penalty = self.td3.preaction_penalty
+        preactions: list[torch.Tensor] = []
+        if penalty:
+            actor = recording_preaction(actor, preactions)
+        action = exploration.actor_action(actor, batch, parameters)
+        loss = -(critic or self.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
+        if penalty:
+            loss = loss + penalty * (preactions[0] ** 2).mean(dim=(-2, -1)).sum()
+        extra = exploration.loss_terms(parameters, batch)
+        return loss if extra is None else loss + extra
+
+    # ------------------------------------------------------------------------ the two variants
+    def _critic_step(self, tensors: dict, batch: dict) -> torch.Tensor:
+        with torch.no_grad():
+            target = self.target_values(batch, as_function(self.actor_target, tensors["actor_target"],
+                                                           self.target_actor_names),
+                                        as_function(self.critic_target, tensors["critic_target"], self.critic_names))
+        grads, loss = value_and_grads(self._critic_loss, tensors["critic"], batch, target)
+        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
+        return loss
+
+    def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
+        return self.critic_loss(batch, target, as_function(self.critic, critic, self.critic_names))
+
+    def _actor_loss(self, actor: list, method: list, critic: list, batch: dict) -> torch.Tensor:
+        return self.actor_loss(batch, as_function(self.actor, actor, self.actor_names),
+                               as_function(self.critic, critic, self.critic_names), method)
+
+    def _delayed_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        critic_loss = self._critic_step(tensors, batch)
+        lr = self.config.learning_rate
+        (grads, method_grads), actor_loss = value_and_grads(
+            self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], batch, wrt=(0, 1))
+        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=lr)
+        if tensors["exploration"]:  # the exploration method's own parameters (NoisySAN's σ_d), at the actor's rate
+            adam_(tensors["exploration"], method_grads, *tensors["exploration_adam"], lr=lr)
+        tau = self.td3.tau
+        if self.target_method.soft_update:
+            torch._foreach_lerp_(tensors["actor_target"], tensors["actor"], tau)
+        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], tau)
+        return critic_loss, actor_loss
+
+    def tensors(self) -> dict[str, list]:
+        """The shared tensors (:meth:`OffPolicyAlgorithm.tensors`), the target actor's and the exploration
+        method's parameters and Adam state."""
+        tensors = super().tensors()
+        if self._actor_target_views is None:
+            self._actor_target_views = [p.detach() for p in self.actor_target.parameters()]
+        adam = self.exploration.adam
+        tensors.update(actor_target=self._actor_target_views, exploration=adam.views if adam is not None else [])
+        if adam is not None:
+            tensors["exploration_adam"] = adam.tensors()
+        return tensors
+
+    # --------------------------------------------------------------------------- checkpoints
+    def networks(self) -> tuple[tuple[str, str, int], ...]:
+        return (*super().networks(), ("actor_target", "target actor (Proxy Target: the proxy)", 1))
+
+    def seed_state(self, index: int) -> dict[str, Any]:
+        """The shared state (:meth:`OffPolicyAlgorithm.seed_state`) and the methods'."""
+        state = super().seed_state(index)
+        state.update(self.target_method.seed_state(index) or {})
+        exploration = self.exploration.seed_state(index)
+        if exploration is not None:
+            state["exploration"] = exploration
+        return state
+
+    def load_seed_states(self, states: Sequence[dict[str, Any]]) -> None:
+        super().load_seed_states(states)
+        self.target_method.load_seed_states(states)
+        if self.exploration.module is not None:
+            self.exploration.load_seed_states([state["exploration"] for state in states])
+
+
+class DDPG(TD3):
+    """DDPG as TD3's paper re-implements it ("our DDPG", Fujimoto et al. 2018): one critic, no target policy
+    smoothing, the actor and targets updated at every critic update; exploration and target actor as TD3's."""
+
+    critics = 1
+    smoothing = False
+
+    @classmethod
+    def policy_delay(cls, td3: TD3Config) -> int:
+        return 1
+
+
+def recording_preaction(actor: Callable, preactions: list[torch.Tensor]) -> Callable:
+    """``actor`` as a function of states that returns the action and appends its pre-tanh output O to ``preactions``."""
+    def acting(states: torch.Tensor, **kwargs) -> torch.Tensor:
+        action, preaction = actor(states, with_preaction=True, **kwargs)
+        preactions.append(preaction)
+        return action
+    return acting
+
+
+def module_parameters(module: torch.nn.Module | None) -> list[torch.Tensor]:
+    """The parameters of ``module`` (none for None), as the update passes a method's tensors."""
+    return list(module.parameters()) if module is not None else []
