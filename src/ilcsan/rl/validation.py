@@ -19,6 +19,10 @@ def validate_run(config: RunConfig) -> None:
     check_methods(config.td3, config.actor.network)
     exploration_method(config.td3.exploration).check(config.task, config.td3)
     target_actor_method(config.td3.target_actor).check(config.task, config.td3)
+    if config.actor.normalization != "none":  # until training runs CaRe-BN's batch statistics, Kalman update and
+        # recalibration, a run would silently act and learn with the initial running statistics
+        raise UserError(f"--normalization {config.actor.normalization}: the actor has it, training does not run it "
+                        "yet; use --normalization none")
     if not config.seeds:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):
