@@ -228,7 +228,7 @@ class SpikingActor(_Actor):
         (K, B_i, N), layer by layer: layer l's currents over every batch are computed with layers 1..l−1 normalised
         by their recalibrated statistics, so it takes one pass over the batches per layer. The actor is unchanged
         (:meth:`set_running_statistics_` installs the result)."""
-        self._norms()
+        self._norms()  # a UserError for an actor without normalisation
         found: list[NormStatistics] = []
         for index in range(len(self.layers)):
             parts = [self.run(batch, norm_statistics=tuple(found)).norm_statistics[index] for batch in batches]
