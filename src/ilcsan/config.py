@@ -160,6 +160,17 @@ SAVED_WITHOUT_INTRA_TIMING = "paper"
 """The timing of an actor saved before ``intra_timing`` existed (a config.json, checkpoint or policy without it): every
 such actor ran Algorithm 1's."""
 
+NORMALIZATION_PAPERS: dict[str, str] = {
+    "none": "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)",
+    "care-bn": "CaRe-BN (Xu et al., ICLR 2026): batch normalisation of each synaptic layer's current, pooled over "
+               "the batch and the T steps; batch statistics in the actor's loss, running statistics (Kalman-style "
+               "gain, periodic recalibration) when acting (:mod:`ilcsan.snn.normalization`)",
+}
+"""How a spiking actor normalises each synaptic layer's current before its neurons (``--normalization``), each with
+its paper. An actor saved before this setting existed has ``none``, the default."""
+NORMALIZATIONS: tuple[str, ...] = tuple(NORMALIZATION_PAPERS)
+
+
 
 # ------------------------------------------------------------------ settings described once
 class Switch(NamedTuple):
@@ -297,6 +308,11 @@ class ActorConfig:
     surrogate_width: float = setting(0.5, "rectangular surrogate window w", bounds="positive")
     enc_v_th: float = setting(0.999, "threshold of the encoder's soft-reset IF neurons", bounds="positive")
     learning_rate: float = setting(1e-4, "actor learning rate; DAN's is 1e-3", flag="actor-lr", bounds="positive")
+    normalization: str = setting("none", "normalisation of each spiking layer's synaptic current before its neurons: "
+                                         "none (the paper), or care-bn (CaRe-BN, Xu et al. 2026: batch statistics "
+                                         "in the actor's loss, Kalman-updated running statistics when acting; on the "
+                                         "output populations the feed-forward current only; spiking actors only)",
+                                 choices=NORMALIZATIONS)
 
     @property
     def fully_spiking(self) -> bool:
@@ -340,6 +356,9 @@ def validate(config: ActorConfig) -> ActorConfig:
         raise UserError(f"the backbone needs 1 to {MAX_HIDDEN_LAYERS} hidden layers, got {len(config.hidden)}")
     if any(width < 1 for width in config.hidden):
         raise UserError(f"hidden layer widths must be at least 1, got {list(config.hidden)}")
+    if config.normalization != "none" and config.network != "spiking":
+        raise UserError(f"--normalization {config.normalization} normalises a spiking actor's synaptic currents; "
+                        "DAN (--network deep) has none: use --normalization none")
     return config
 
 

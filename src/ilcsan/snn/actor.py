@@ -11,10 +11,16 @@ intra-layer module and decoder operations.
 
 Every tensor has a leading ensemble dimension K (seeds trained together): observations (K, B, N) →
 actions (K, B, M).
+
+With ``normalization="care-bn"`` (:mod:`ilcsan.snn.normalization`) each synaptic layer's current W^l S + b^l is
+normalised before its neurons (on the output layer before the intra-layer current is added), with the running
+statistics by default or, for the actor's loss, the batch's own (``norm_statistics`` of :meth:`SpikingActor.run`).
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from collections.abc import Sequence
 
 import torch
@@ -29,10 +35,17 @@ from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 from .intra import IntraLayerConnections
 from .neurons import neuron_model
 from .noise import NeuronNoise
+from .normalization import CareBatchNorm, NormStatistics, batch_statistics, pool_statistics
 from .output import ActorOutput
 from .reference import run_reference
 
 ACTOR_SALT = 1
+
+
+NormStatisticsChoice = str | Sequence[NormStatistics]
+"""Which statistics a normalising actor's layers use (``norm_statistics``): "running" (the default), "batch" (each
+layer its batch's own, pooled over the batch and the T steps), or a sequence of :class:`NormStatistics` for the first
+layers, the layers after them using their batch's own ("batch" is the empty sequence)."""
 
 
 def checked_engine(engine: str) -> str:
@@ -83,16 +96,47 @@ class SpikingActor(_Actor):
         self.decoder = PopulationDecoder(ensemble, action_dim, config.population_out, config.decoder,
                                          config.alpha_v_li)
         self.neuron = neuron_model(config)
+        self.norms = (nn.ModuleList(CareBatchNorm(ensemble, width, config.v_th) for width in sizes[1:])
+                      if config.normalization == "care-bn" else None)
         self.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:
-        """Initialise encoder, layers, intra-layer connections and decoder, in that order, per seed."""
+        """Initialise encoder, layers, intra-layer connections and decoder, in that order, per seed; CaRe-BN's γ, β
+        and statistics take fixed values and draw nothing, so the other weights are those of the same actor without
+        normalisation."""
         self.encoder.reset_parameters(generators)
         for layer in self.layers:
             layer.reset_parameters(generators)
         if self.intra is not None:
             self.intra.reset_parameters(generators)
         self.decoder.reset_parameters(generators)
+        for norm in self.norms or ():
+            norm.reset_parameters()
+
+    def checked_norm_statistics(self, choice: NormStatisticsChoice) -> str | tuple[NormStatistics, ...]:
+        """``choice`` (:data:`NormStatisticsChoice`) as "running" or a tuple of given statistics ("batch": ()),
+        or a :class:`UserError` when it is not one or this actor does not normalise."""
+        if isinstance(choice, str) and choice not in ("running", "batch"):
+            raise UserError(f"norm_statistics {choice!r} is not one of: running, batch, or a sequence of statistics")
+        if self.norms is None:
+            if choice != "running":
+                raise UserError("this actor does not normalise its currents (--normalization none): it has no "
+                                "batch statistics to use")
+            return "running"
+        if choice == "running":
+            return choice
+        given = () if choice == "batch" else tuple(choice)
+        if len(given) > len(self.layers):
+            raise UserError(f"{len(given)} layers' statistics given, the actor has {len(self.layers)} layers")
+        return given
+
+    def norm_statistics_of(self, index: int, currents: torch.Tensor,
+                           choice: str | tuple[NormStatistics, ...]) -> NormStatistics:
+        """The statistics synaptic layer ``index`` normalises its ``currents`` with under a checked ``choice``
+        (:meth:`checked_norm_statistics`): the running ones, the given ones, or the batch's own."""
+        if choice == "running":
+            return self.norms[index].running()
+        return choice[index] if index < len(choice) else batch_statistics(currents)
 
     def layer_spikes(self, currents: torch.Tensor, output_layer: bool, transmission: torch.Tensor | None = None,
                      membranes: list[torch.Tensor] | None = None) -> torch.Tensor:
@@ -127,14 +171,18 @@ class SpikingActor(_Actor):
                 intra_current = intra(step_spikes, weight, bias)
         return torch.stack(spikes, dim=1)
 
-    def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None, membranes: bool) -> ActorOutput:
+    def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None, membranes: bool,
+                         norm_statistics: str | tuple[NormStatistics, ...]) -> ActorOutput:
         encoded = self.encoder(state)
         values, constant = encoded.values, encoded.constant
-        inputs, recorded = [], [] if membranes else None
+        inputs, recorded, used = [], [] if membranes else None, []
         last = len(self.layers) - 1
         for index, layer in enumerate(self.layers):
             inputs.append(values)
             currents = layer(values)
+            if self.norms is not None:  # an analog input's (K, B, D) currents: the same statistics as their T copies
+                used.append(self.norm_statistics_of(index, currents, norm_statistics))
+                currents = self.norms[index](currents, used[-1])
             if constant:
                 currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
             if noise is not None:
@@ -144,23 +192,63 @@ class SpikingActor(_Actor):
             constant = False
         output, voltages = self.decoder(values, None if noise is None else noise.decoder)
         return ActorOutput(self.squash(output), tuple(inputs), values, voltages, output,
-                           torch.stack(recorded, dim=1) if membranes else None)
+                           torch.stack(recorded, dim=1) if membranes else None,
+                           tuple(used) if self.norms is not None else None)
 
     def run(self, state: torch.Tensor, engine: str | None = None, noise: NeuronNoise | None = None,
-            membranes: bool = False) -> ActorOutput:
+            membranes: bool = False, norm_statistics: NormStatisticsChoice = "running") -> ActorOutput:
         """Normalised state (K, B, N) → :class:`ActorOutput`; ``engine`` overrides :attr:`engine` for analysis;
-        ``noise`` perturbs the neurons (NoisySAN exploration, training only); ``membranes`` records the output
-        layer's potentials (:attr:`ActorOutput.membranes`, diagnostics)."""
+        ``noise`` perturbs the neurons (NoisySAN exploration, training only; added after the normalisation);
+        ``membranes`` records the output layer's potentials (:attr:`ActorOutput.membranes`, diagnostics);
+        ``norm_statistics`` (CaRe-BN only, :data:`NormStatisticsChoice`) says which statistics normalise each layer,
+        returned in :attr:`ActorOutput.norm_statistics`."""
+        choice = self.checked_norm_statistics(norm_statistics)
         if checked_engine(engine or self.engine) == "reference":
-            return run_reference(self, state, noise, membranes)
-        return self._run_layer_major(state, noise, membranes)
+            return run_reference(self, state, noise, membranes, choice)
+        return self._run_layer_major(state, noise, membranes, choice)
 
-    def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None,
-                with_preaction: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None, with_preaction: bool = False,
+                norm_statistics: NormStatisticsChoice = "running") -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given;
-        ``with_preaction`` also returns the pre-tanh output O (K, B, M)."""
-        output = self.run(state, noise=noise)
+        ``with_preaction`` also returns the pre-tanh output O (K, B, M); ``norm_statistics`` as for :meth:`run`."""
+        output = self.run(state, noise=noise, norm_statistics=norm_statistics)
         return (output.action, output.readout) if with_preaction else output.action
+
+    # ------------------------------------------------------------------ CaRe-BN's running statistics
+    def update_running_statistics_(self, statistics: Sequence[NormStatistics], samples: int) -> None:
+        """Move each layer's running statistics toward the batch statistics of a pass over ``samples`` states
+        (:attr:`ActorOutput.norm_statistics` of ``norm_statistics="batch"``) by CaRe-BN's Kalman-style gain
+        (:func:`~ilcsan.snn.normalization.kalman_update`), in place."""
+        for norm, batch in zip(self._norms(), statistics, strict=True):
+            norm.kalman_update_(batch, samples)
+
+    @torch.no_grad()
+    def recalibrated_statistics(self, batches: Sequence[torch.Tensor]) -> tuple[NormStatistics, ...]:
+        """The exact statistics of each layer's currents pooled over all ``batches`` of normalised states
+        (K, B_i, N), layer by layer: layer l's currents over every batch are computed with layers 1..l−1 normalised
+        by their recalibrated statistics, so it takes one pass over the batches per layer. The actor is unchanged
+        (:meth:`set_running_statistics_` installs the result)."""
+        self._norms()  # a UserError for an actor without normalisation
+        found: list[NormStatistics] = []
+        for index in range(len(self.layers)):
+            parts = [self.run(batch, norm_statistics=tuple(found)).norm_statistics[index] for batch in batches]
+            found.append(pool_statistics(parts, [batch.shape[1] for batch in batches]))
+        return tuple(found)
+
+    def set_running_statistics_(self, statistics: Sequence[NormStatistics]) -> None:
+        """Replace each layer's running μ̂, σ̂² (P_μ, P_σ² are kept), in place."""
+        for norm, layer_statistics in zip(self._norms(), statistics, strict=True):
+            norm.set_running_(layer_statistics)
+
+    def running_statistics(self) -> list[torch.Tensor]:
+        """The running μ̂, σ̂² buffers of every layer in order: the tensors besides the parameters that the target
+        actor's Polyak average must follow (its P_μ, P_σ² are never read)."""
+        return [tensor for norm in self._norms() for tensor in norm.running()]
+
+    def _norms(self) -> nn.ModuleList:
+        if self.norms is None:
+            raise UserError("this actor does not normalise its currents (--normalization none)")
+        return self.norms
 
     def noise_widths(self) -> tuple[int, ...]:
         """The widths D_l of the synaptic layers' outputs, whose neurons NoisySAN perturbs."""
@@ -189,6 +277,23 @@ class DeepActor(_Actor):
                 with_preaction: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         output = self.mlp(state)
         return (self.squash(output), output) if with_preaction else self.squash(output)
+
+
+def folded_actor(actor: SpikingActor) -> SpikingActor:
+    """An equivalent copy of a CaRe-BN actor without normalisation: each layer's W, b replaced by the fold of its
+    running statistics, γ and β (:func:`~ilcsan.snn.normalization.fold_into_linear`), its config's
+    ``normalization`` "none". Acting with running statistics, it gives the same actions up to float rounding, with
+    plain synaptic layers (additions only on spikes). ``actor`` is not changed."""
+    norms = actor._norms()
+    folded = copy.deepcopy(actor)
+    with torch.no_grad():
+        for layer, norm in zip(folded.layers, norms, strict=True):
+            weight, bias = norm.folded(layer.weight, layer.bias)
+            layer.weight.copy_(weight)
+            layer.bias.copy_(bias)
+    folded.norms = None
+    folded.config = dataclasses.replace(actor.config, normalization="none")
+    return folded
 
 
 def build_actor(config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],

@@ -10,27 +10,63 @@ rounding, values and gradients). It owns no arithmetic of its own: it calls the 
 step, intra-layer module and the decoder's
 :meth:`~ilcsan.snn.decoders.PopulationDecoder.voltage_step` and
 :meth:`~ilcsan.snn.decoders.PopulationDecoder.readout`, only in Algorithm 1's order.
+
+CaRe-BN (:mod:`ilcsan.snn.normalization`) normalises X_t^l = W^l S_t^{l−1} + b^l at each step with statistics fixed
+for the whole pass (the intra-layer current and NoisySAN's charge come after it). The running or given statistics
+are known before t = 1; a batch's own are not: they pool layer l's currents over all T steps, which the time loop
+has produced only at its end. So with batch statistics this engine runs Algorithm 1 once per layer first: pass l
+takes layer l's currents over t = 1..T, its layers before l normalised with the statistics the earlier passes found
+(layer l's currents do not depend on layer l's statistics or any later layer's, which meanwhile use their running
+ones), and pools them (:func:`~ilcsan.snn.normalization.batch_statistics`); a last pass uses them all. The
+statistics are the time loop's own, not the layer-major engine's.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 
 from .noise import NeuronNoise
+from .normalization import NormStatistics, batch_statistics
 from .output import ActorOutput
 
 
-def run_reference(actor, state: torch.Tensor, noise: NeuronNoise | None = None,
-                  membranes: bool = False) -> ActorOutput:
+class _Pass(NamedTuple):
+    """One run of Algorithm 1's time loop: its output and each layer's (un-normalised) currents X_t^l (K, B, D) in
+    order of t."""
+
+    output: ActorOutput
+    currents: list[list[torch.Tensor]]
+
+
+def run_reference(actor, state: torch.Tensor, noise: NeuronNoise | None = None, membranes: bool = False,
+                  norm_statistics: str | tuple[NormStatistics, ...] = "running") -> ActorOutput:
     """Normalised state (K, B, N) → :class:`ActorOutput` by Algorithm 1's time loop; ``noise`` adds NoisySAN's
     perturbations at each step where :class:`~ilcsan.snn.noise.NeuronNoise` says; ``membranes`` records the
-    output layer's potentials."""
+    output layer's potentials; ``norm_statistics`` (checked by the actor: "running" or the given statistics of
+    the first layers, the others their batch's own) as in the module docstring."""
     encoded = actor.encoder(state)
+    statistics = None
+    if actor.norms is not None:
+        statistics = ([norm.running() for norm in actor.norms] if norm_statistics == "running"
+                      else list(norm_statistics))
+        for index in range(len(statistics), len(actor.layers)):
+            placeholders = statistics + [norm.running() for norm in actor.norms[index:]]
+            currents = _algorithm_1(actor, encoded, noise, False, placeholders).currents[index]
+            statistics.append(batch_statistics(torch.stack(currents, dim=1)))
+    return _algorithm_1(actor, encoded, noise, membranes, statistics).output
+
+
+def _algorithm_1(actor, encoded, noise: NeuronNoise | None, membranes: bool,
+                 statistics: list[NormStatistics] | None) -> _Pass:
+    """One pass of the time loop; ``statistics`` normalise each layer's current (None: the actor has no CaRe-BN)."""
     neuron, decoder, intra = actor.neuron, actor.decoder, actor.intra
     last = len(actor.layers) - 1
     timesteps = actor.config.timesteps
     layer_states: list = [None] * len(actor.layers)
     inputs: list[list[torch.Tensor]] = [[] for _ in actor.layers]
+    currents: list[list[torch.Tensor]] = [[] for _ in actor.layers]
     output_spikes, voltages, recorded = [], [], []
     intra_current = voltage = None
     for t in range(timesteps):
@@ -38,6 +74,9 @@ def run_reference(actor, state: torch.Tensor, noise: NeuronNoise | None = None,
         for index, layer in enumerate(actor.layers):
             inputs[index].append(spikes)
             current = layer(spikes)
+            currents[index].append(current)
+            if statistics is not None:
+                current = actor.norms[index](current, statistics[index])
             if index == last and t == 0 and intra is not None:
                 intra_current = intra.first_current(current)
             if index == last and intra_current is not None:
@@ -64,5 +103,7 @@ def run_reference(actor, state: torch.Tensor, noise: NeuronNoise | None = None,
         for index, per_layer in enumerate(inputs)
     )
     readout = decoder.readout(spike_train, voltage_trace, None if noise is None else noise.decoder)
-    return ActorOutput(actor.squash(readout), layer_inputs, spike_train, voltage_trace, readout,
-                       torch.stack(recorded, dim=1) if membranes else None)
+    output = ActorOutput(actor.squash(readout), layer_inputs, spike_train, voltage_trace, readout,
+                         torch.stack(recorded, dim=1) if membranes else None,
+                         tuple(statistics) if statistics is not None else None)
+    return _Pass(output, currents)

@@ -1,0 +1,210 @@
+"""CaRe-BN's normalisation of a spiking actor's synaptic currents (Xu et al., ICLR 2026), the actor's side.
+
+Each synaptic layer's current X = W S + b, shape (K, T, B, D) (or (K, B, D) when the input is the same at every
+step), is normalised per seed k and neuron d before the neuron update, with statistics pooled over the batch and all
+T steps:
+
+  X̂ = γ (X − μ) / √(σ² + ε) + β,        μ, σ² (K, D); γ, β (K, D), both initialised to V_th / 2.
+
+σ² is the biased (population) variance of the B·T values, as the authors' code computes it. On ILC-SAN's output
+populations only this feed-forward current is normalised; the intra-layer current of Eq. (10) is added after it.
+PopSAN's decoder (and ILC-SAN's LI decoder) are not normalised: the normalised layers are those before a spiking
+neuron update.
+
+Which (μ, σ²) a layer uses:
+
+* in the actor's loss, the batch's own, :func:`batch_statistics` (gradients flow through them);
+* everywhere else (acting, evaluation, the target actor), the running statistics μ̂, σ̂², which move after each
+  batch-statistics pass by a Kalman-style gain instead of a fixed momentum (:func:`kalman_update`) and are
+  periodically replaced by the exact pooled statistics of many replay batches (:func:`pool_statistics`).
+
+With fixed statistics the normalisation is an affine map X̂ = s X + h (:func:`norm_affine`), which
+:func:`fold_into_linear` moves into the layer's weight and bias, so an exported actor stays additions-only.
+
+Every function here is pure (new tensors out, nothing changed in place); :class:`CareBatchNorm` holds one layer's
+γ, β (parameters) and μ̂, σ̂², P_μ, P_σ² (persistent buffers, ensemble dimension K first) and applies them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from ..errors import UserError
+
+EPSILON = 1e-5
+"""ε in √(σ² + ε), the authors' value."""
+INNOVATION_MOMENTUM = 0.8
+"""m in P ← m P + (1 − m) δ², the exponential average of the innovation's square (the authors' value)."""
+
+
+class NormStatistics(NamedTuple):
+    """Per seed and neuron mean μ and biased variance σ², each (K, D)."""
+
+    mean: torch.Tensor
+    var: torch.Tensor
+
+
+class RunningStatistics(NamedTuple):
+    """The running statistics μ̂, σ̂² and the tracked variances P_μ, P_σ² of their innovations, each (K, D)."""
+
+    mean: torch.Tensor
+    var: torch.Tensor
+    mean_innovation: torch.Tensor
+    var_innovation: torch.Tensor
+
+
+def batch_statistics(currents: torch.Tensor) -> NormStatistics:
+    """μ and the biased σ² of currents (K, ..., D) over every dimension but the first (seed) and last (neuron): for
+    (K, T, B, D) pooled over the T steps and the B states. A (K, B, D) current that is the same at every step has the
+    same pooled statistics as its T copies. Differentiable: the actor's loss backpropagates through them."""
+    var, mean = torch.var_mean(currents, dim=tuple(range(1, currents.dim() - 1)), correction=0)
+    return NormStatistics(mean, var)
+
+
+def _per_neuron(values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """(K, D) reshaped to broadcast against ``like`` (K, ..., D)."""
+    return values.reshape(values.shape[0], *([1] * (like.dim() - 2)), values.shape[-1])
+
+
+def norm_affine(statistics: NormStatistics, gamma: torch.Tensor, beta: torch.Tensor,
+                eps: float = EPSILON) -> tuple[torch.Tensor, torch.Tensor]:
+    """The normalisation as the affine map X̂ = s X + h: s = γ / √(σ² + ε), h = β − s μ, each (K, D)."""
+    scale = gamma * torch.rsqrt(statistics.var + eps)
+    return scale, beta - scale * statistics.mean
+
+
+def normalize(currents: torch.Tensor, statistics: NormStatistics, gamma: torch.Tensor, beta: torch.Tensor,
+              eps: float = EPSILON) -> torch.Tensor:
+    """X̂ = γ (X − μ) / √(σ² + ε) + β for currents (K, ..., D), computed as s X + h (:func:`norm_affine`)."""
+    scale, shift = norm_affine(statistics, gamma, beta, eps)
+    return currents * _per_neuron(scale, currents) + _per_neuron(shift, currents)
+
+
+def kalman_update(running: RunningStatistics, batch: NormStatistics, samples: int,
+                  momentum: float = INNOVATION_MOMENTUM) -> RunningStatistics:
+    """One Kalman-style step of the running statistics toward a batch's (pure: returns new tensors).
+
+    For the mean (the variance alike, with σ_B² and σ̂² in place of μ_B and μ̂):
+
+      innovation         δ = μ_B − μ̂
+      its variance       P ← m P + (1 − m) δ²            (m = ``momentum``, 0.8)
+      observation noise  R = σ_B² / (B − 1)              (for the variance: R = 2 (σ_B²)² / (B − 1))
+      gain               K = P / (P + R)                 (0 where P + R = 0: then δ = 0, nothing to move)
+      update             μ̂ ← μ̂ + K δ
+
+    P is updated with this batch's innovation before the gain is formed, as in the authors' code. B = ``samples`` is
+    the number of states in the batch: the authors' code divides by 255 for its batches of 256 states; the T steps of
+    one state are not counted as independent samples. The batch statistics are detached: the running statistics are
+    not trained.
+    """
+    if samples < 2:
+        raise UserError(f"CaRe-BN's running statistics need batches of at least 2 states, got {samples}")
+    batch_mean, batch_var = batch.mean.detach(), batch.var.detach()
+    mean, mean_innovation = _kalman_step(running.mean, running.mean_innovation, batch_mean,
+                                         batch_var / (samples - 1), momentum)
+    var, var_innovation = _kalman_step(running.var, running.var_innovation, batch_var,
+                                       2.0 * batch_var.square() / (samples - 1), momentum)
+    return RunningStatistics(mean, var, mean_innovation, var_innovation)
+
+
+def _kalman_step(estimate: torch.Tensor, innovation_var: torch.Tensor, observation: torch.Tensor,
+                 noise: torch.Tensor, momentum: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(estimate + K δ, P) for δ = observation − estimate, P = m P + (1 − m) δ², K = P / (P + noise)."""
+    innovation = observation - estimate
+    innovation_var = momentum * innovation_var + (1.0 - momentum) * innovation.square()
+    total = innovation_var + noise
+    gain = torch.where(total > 0, innovation_var / total, torch.zeros_like(total))
+    return estimate + gain * innovation, innovation_var
+
+
+def pool_statistics(parts: Sequence[NormStatistics], counts: Sequence[int] | None = None) -> NormStatistics:
+    """The exact μ and biased σ² of the union of several batches from each batch's statistics and size n_i
+    (``counts``; equal sizes when None): μ = Σ n_i μ_i / N, σ² = Σ n_i (σ_i² + (μ_i − μ)²) / N, N = Σ n_i."""
+    if not parts:
+        raise ValueError("pooling needs at least one batch's statistics")
+    means = torch.stack([part.mean for part in parts])
+    variances = torch.stack([part.var for part in parts])
+    weights = torch.as_tensor([1.0] * len(parts) if counts is None else [float(n) for n in counts],
+                              dtype=means.dtype, device=means.device)
+    weights = (weights / weights.sum()).reshape(-1, *([1] * (means.dim() - 1)))
+    mean = (weights * means).sum(dim=0)
+    return NormStatistics(mean, (weights * (variances + (means - mean).square())).sum(dim=0))
+
+
+def fold_into_linear(weight: torch.Tensor, bias: torch.Tensor | None, statistics: NormStatistics,
+                     gamma: torch.Tensor, beta: torch.Tensor,
+                     eps: float = EPSILON) -> tuple[torch.Tensor, torch.Tensor]:
+    """The weight (K, D, in) and bias (K, D) of one layer whose output W S + b is normalised with fixed
+    ``statistics``: with s = γ / √(σ² + ε), W' = s W (row d scaled by s_d) and b' = s (b − μ) + β, so that
+    W' S + b' = γ (W S + b − μ) / √(σ² + ε) + β. A layer without bias folds as b = 0."""
+    scale, shift = norm_affine(statistics, gamma, beta, eps)
+    folded_bias = shift if bias is None else scale * bias + shift
+    return scale.unsqueeze(-1) * weight, folded_bias
+
+
+class CareBatchNorm(nn.Module):
+    """CaRe-BN of one synaptic layer's current for K seeds and D neurons.
+
+    γ, β (K, D) are parameters, initialised to V_th / 2 (``threshold``). The buffers ``running_mean`` (0),
+    ``running_var`` (1), ``mean_innovation`` and ``var_innovation`` (P_μ, P_σ², both 0) are persistent, K first.
+    ``forward`` normalises with the statistics it is given, else the running ones; the ``_``-suffixed methods write
+    the buffers in place.
+    """
+
+    def __init__(self, ensemble: int, features: int, threshold: float, eps: float = EPSILON,
+                 momentum: float = INNOVATION_MOMENTUM):
+        super().__init__()
+        self.threshold, self.eps, self.momentum = threshold, eps, momentum
+        self.gamma = nn.Parameter(torch.empty(ensemble, features))
+        self.beta = nn.Parameter(torch.empty(ensemble, features))
+        for name in ("running_mean", "running_var", "mean_innovation", "var_innovation"):
+            self.register_buffer(name, torch.empty(ensemble, features))
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """γ = β = V_th / 2, μ̂ = 0, σ̂² = 1, P_μ = P_σ² = 0 (the authors' initial values)."""
+        with torch.no_grad():
+            self.gamma.fill_(self.threshold / 2.0)
+            self.beta.fill_(self.threshold / 2.0)
+            self.running_mean.zero_()
+            self.running_var.fill_(1.0)
+            self.mean_innovation.zero_()
+            self.var_innovation.zero_()
+
+    def running(self) -> NormStatistics:
+        """The running statistics (μ̂, σ̂²) as a layer normalises with them."""
+        return NormStatistics(self.running_mean, self.running_var)
+
+    def running_state(self) -> RunningStatistics:
+        """μ̂, σ̂², P_μ, P_σ²: what :func:`kalman_update` reads."""
+        return RunningStatistics(self.running_mean, self.running_var, self.mean_innovation, self.var_innovation)
+
+    def forward(self, currents: torch.Tensor, statistics: NormStatistics | None = None) -> torch.Tensor:
+        """Currents (K, ..., D) normalised with ``statistics``, or with the running statistics when None."""
+        return normalize(currents, self.running() if statistics is None else statistics, self.gamma, self.beta,
+                         self.eps)
+
+    @torch.no_grad()
+    def kalman_update_(self, batch: NormStatistics, samples: int) -> None:
+        """:func:`kalman_update` of the buffers toward ``batch`` (statistics of ``samples`` states), in place."""
+        for buffer, value in zip(self.running_state(), kalman_update(self.running_state(), batch, samples,
+                                                                     self.momentum), strict=True):
+            buffer.copy_(value)
+
+    @torch.no_grad()
+    def set_running_(self, statistics: NormStatistics) -> None:
+        """Replace μ̂, σ̂² (recalibration); P_μ, P_σ² are kept, as in the authors' code."""
+        self.running_mean.copy_(statistics.mean)
+        self.running_var.copy_(statistics.var)
+
+    def folded(self, weight: torch.Tensor, bias: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:func:`fold_into_linear` with this layer's running statistics, γ and β."""
+        return fold_into_linear(weight, bias, self.running(), self.gamma, self.beta, self.eps)
+
+    def extra_repr(self) -> str:
+        k, d = self.gamma.shape
+        return f"ensemble={k}, features={d}, eps={self.eps}, momentum={self.momentum}"
