@@ -28,7 +28,7 @@ from torch import nn
 from ..compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ..compute.programs import CompiledPerShape, prepare_compilation
 from ..config import ActorConfig, TD3Config
-from ..runs.checkpoint import load_params, slice_params
+from ..runs.checkpoint import load_state, slice_state
 from ..snn.actor import build_actor
 from ..snn.ensemble import EnsembleMLP, seed_generators
 from .adam import Adam
@@ -152,7 +152,7 @@ class TD3Agent:
     # --------------------------------------------------------------------------- checkpoints
     def seed_state(self, index: int) -> dict[str, Any]:
         """Seed ``index``'s networks, Adam states, methods' states, update count and smoothing-noise generator."""
-        state: dict[str, Any] = {key: slice_params(getattr(self, key), index, rows) for key, _, rows in AGENT_NETWORKS}
+        state: dict[str, Any] = {key: slice_state(getattr(self, key), index, rows) for key, _, rows in AGENT_NETWORKS}
         state["actor_optimizer"] = self.actor_adam.seed_state(index, 1)
         state["critic_optimizer"] = self.critic_adam.seed_state(index, 2)
         state.update(self.target.seed_state(index) or {})
@@ -166,7 +166,7 @@ class TD3Agent:
     def load_seed_states(self, states: Sequence[dict[str, Any]]) -> None:
         """Stack the seeds' :meth:`seed_state` dicts into this agent (its seeds in the same order)."""
         for key, what, _ in AGENT_NETWORKS:
-            load_params(getattr(self, key), [state[key] for state in states], what)
+            load_state(getattr(self, key), [state[key] for state in states], what)
         self.actor_adam.load_seed_states([state["actor_optimizer"] for state in states])
         self.critic_adam.load_seed_states([state["critic_optimizer"] for state in states])
         self.target.load_seed_states(states)
