@@ -23,7 +23,7 @@ from ilcsan.rl.training import Trainer
 from ilcsan.runs.checkpoint import (
     finish_interrupted_commit,
     open_for_training,
-    slice_params,
+    slice_state,
     write_together,
 )
 from ilcsan.runs.directory import RunDirectory
@@ -71,7 +71,7 @@ def _train_once(agent):
 def test_a_seeds_slice_is_its_own_rows_and_its_twin_critics():
     agent = _agent((0, 1, 2))
     _train_once(agent)
-    actor, critic = slice_params(agent.actor, 1, 1), slice_params(agent.critic, 1, 2)
+    actor, critic = slice_state(agent.actor, 1, 1), slice_state(agent.critic, 1, 2)
     for name, param in agent.actor.named_parameters():
         assert torch.equal(actor[name], param.detach()[1:2])
     for name, param in agent.critic.named_parameters():

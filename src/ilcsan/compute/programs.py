@@ -78,7 +78,8 @@ def tensor_leaves(value, leaves: list[torch.Tensor] | None = None) -> list[torch
 
 
 def module_tensors(module: nn.Module) -> list[torch.Tensor]:
-    """``module``'s parameters and buffers."""
+    """``module``'s parameters and buffers, persistent or not: the constants (action bounds, masks) are read by a
+    program as much as the state is."""
     return [*module.parameters(), *module.buffers()]
 
 

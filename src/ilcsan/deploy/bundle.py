@@ -1,7 +1,8 @@
 """The ``.npz`` deploy bundle of a trained actor (``ilcsan export --format npz``; :mod:`ilcsan.deploy.export`).
 
 Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.deploy.runtime` with
-numpy only:
+numpy only. The arrays are the actor's exported state (:mod:`ilcsan.deploy.state`: its parameters with the masks
+applied; a persistent buffer folded in, or the export refused):
 
 =====================  ============  =========================================================
 name                   shape         meaning
@@ -40,6 +41,7 @@ from ..files import atomic_savez
 from .policy import Policy
 from .quantize import quantize_bundle
 from .runtime import CONFIG_META_KEYS
+from .state import export_state
 
 WEIGHTS = tuple(WEIGHT_FORMATS)
 """Weight formats of a bundle: float32, or int8 with a float32 scale per layer (:mod:`ilcsan.deploy.quantize`)."""
@@ -70,26 +72,10 @@ def actor_config_of(meta: dict[str, Any]) -> ActorConfig:
 
 
 def bundle_arrays(policy: Policy) -> dict[str, np.ndarray]:
-    """The actor's weights under the bundle's names, float32, seed slice 0, masks applied."""
-    actor = policy.actor
-
-    def array(tensor) -> np.ndarray:
-        return tensor.detach()[0].cpu().numpy().astype(np.float32)
-
-    arrays: dict[str, np.ndarray] = {}
-    if policy.actor_config.network == "deep":
-        for index, layer in enumerate(actor.mlp.layers):
-            arrays[f"layers.{index}.weight"], arrays[f"layers.{index}.bias"] = array(layer.weight), array(layer.bias)
-        return arrays
-    if actor.encoder.mu is not None:
-        arrays["encoder.mu"], arrays["encoder.sigma"] = array(actor.encoder.mu), array(actor.encoder.sigma)
-    for index, layer in enumerate(actor.layers):
-        arrays[f"layers.{index}.weight"], arrays[f"layers.{index}.bias"] = array(layer.weight), array(layer.bias)
-    if actor.intra is not None:
-        arrays["intra.weight"] = array(actor.intra.masked_weight())
-        arrays["intra.bias"] = array(actor.intra.masked_bias())
-    arrays["decoder.weight"], arrays["decoder.bias"] = array(actor.decoder.weight), array(actor.decoder.bias)
-    return arrays
+    """The actor's exported state (:func:`~ilcsan.deploy.state.export_state`: float32, seed slice 0, masks applied,
+    persistent buffers folded or refused) under the bundle's names: a spiking actor's own names, DAN's without
+    its ``mlp.`` prefix."""
+    return {name.removeprefix("mlp."): array for name, array in export_state(policy.actor).items()}
 
 
 def export_npz(policy: Policy, path: Path, weights: str = "float32") -> Path:

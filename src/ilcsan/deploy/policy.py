@@ -24,7 +24,7 @@ from ..rl.algorithms import algorithm_class
 from ..rl.algorithms.base import first_readout
 from ..rl.normalizer import RunningNormalizer
 from ..rl.tasks import action_bounds, make_env
-from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT
+from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT, missing_state, module_state
 from ..runs.directory import CHECKPOINT, POLICY, RunDirectory
 from ..snn.actor import build_actor
 from .runtime.host import HostSide
@@ -125,9 +125,10 @@ class Policy(HostSide):
         return self.actor.run(torch.as_tensor(self.normalize(batch)).unsqueeze(0), engine)
 
 
-def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor], path: Path,
-                      readouts: int = 1) -> Policy:
-    """The policy of a policy file's or checkpoint's fields and actor tensors, each checked before anything is built;
+def _state_to_policy(data: dict[str, Any], actor_state: dict[str, torch.Tensor], path: Path,
+                     readouts: int = 1) -> Policy:
+    """The policy ``data`` describes, its actor's parameters and persistent buffers from ``actor_state``
+    (:func:`~ilcsan.runs.checkpoint.slice_state` of one seed), each checked before anything is allocated;
     ``readouts`` per action dimension of those tensors (a SAC checkpoint's actor has 2, of which the first acts)."""
     config = ActorConfig.from_dict(data["actor_config"])
     state_dim, action_dim = int(data["state_dim"]), int(data["action_dim"])
@@ -145,22 +146,22 @@ def _params_to_policy(data: dict[str, Any], actor_params: dict[str, torch.Tensor
     # make us build a huge network
     with torch.device("meta"):
         skeleton = build_actor(config, state_dim, action_dim, scale, offset, seeds=(0,))
-    if readouts > 1 and isinstance(actor_params, dict):  # a SAC checkpoint's actor: its mean's populations
-        actor_params = first_readout({name: value for name, value in actor_params.items() if torch.is_tensor(value)},
-                                     skeleton)
-    for name, param in skeleton.named_parameters():
-        value = actor_params.get(name) if isinstance(actor_params, dict) else None
+    if readouts > 1 and isinstance(actor_state, dict):  # a SAC checkpoint's actor: its mean's populations
+        actor_state = first_readout({name: value for name, value in actor_state.items() if torch.is_tensor(value)},
+                                    skeleton)
+    for name, expected in module_state(skeleton).items():
+        value = actor_state.get(name) if isinstance(actor_state, dict) else None
         if not torch.is_tensor(value):
-            raise UserError(f"{path} has no weights for {name!r}: it is incomplete or from another version")
-        if tuple(value.shape) != tuple(param.shape):
-            raise UserError(f"{path}: weights {name!r} have shape {tuple(value.shape)}, the actor needs "
-                            f"{tuple(param.shape)}; the file is corrupt or mismatched")
+            raise UserError(f"{path} has {missing_state(skeleton, name)}")
+        if tuple(value.shape) != tuple(expected.shape):
+            raise UserError(f"{path}: {name!r} has shape {tuple(value.shape)}, the actor needs "
+                            f"{tuple(expected.shape)}; the file is corrupt or mismatched")
         if not torch.all(torch.isfinite(value)):
-            raise UserError(f"{path}: weights {name!r} contain NaN or inf; the file is corrupt or its run diverged")
+            raise UserError(f"{path}: {name!r} contains NaN or inf; the file is corrupt or its run diverged")
     actor = build_actor(config, state_dim, action_dim, scale, offset, seeds=(0,))
     with torch.no_grad():
-        for name, param in actor.named_parameters():
-            param.copy_(actor_params[name])
+        for name, tensor in module_state(actor).items():
+            tensor.copy_(actor_state[name])
     actor.eval()
     return Policy(actor, config, data["task"], obs_mean, obs_std, obs_clip, scale, offset,
                   {key: data.get(key) for key in ("step", "seed", "eval_return_mean")},
@@ -201,10 +202,10 @@ def _load(path: str | Path) -> Policy:
     data = safe_torch_load(file, "policy")
     try:
         if data["format"] == POLICY_FORMAT:
-            return _params_to_policy(data, data["actor"], file)
+            return _state_to_policy(data, data["actor"], file)
         if data["format"] == CHECKPOINT_FORMAT:
             readouts = algorithm_class(data["config"].get("algorithm") or "td3").readouts
-            return _params_to_policy(_checkpoint_as_policy(data), data["actor"], file, readouts)
+            return _state_to_policy(_checkpoint_as_policy(data), data["actor"], file, readouts)
     except UserError:
         raise
     except (KeyError, TypeError, AttributeError, ValueError, IndexError, RuntimeError) as error:

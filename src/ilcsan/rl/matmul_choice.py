@@ -34,10 +34,11 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
     actions (TD3's and DDPG's target actor unless Proxy Target replaces it, SAC's own actor; every update) and the
     forward and both backward products of the actor update (every d-th); evaluation's forward over T·E rows (at most
     ``episode_steps`` steps every ``eval_every``; 1000, Gymnasium's MuJoCo limit, when not given); the diagnostics'
-    over T·1000 rows (once per evaluation); with Proxy Target, the actor's forward over T·B·K_proxy rows for the
-    proxy's regression targets (every update). T is 1 for DAN and for a first layer whose input is not a spike
-    train. For every critic layer: the C·K critics' three products (the critic loss) and their forward again (the
-    target critics), every update; the three products of the critics the actor loss evaluates (every d-th update).
+    over T·1000 rows (once per evaluation, the deployed actor's: its first readout only); with Proxy Target, the
+    actor's forward over T·B·K_proxy rows for the proxy's regression targets (every update). T is 1 for DAN and for
+    a first layer whose input is not a spike train. For every critic layer: the C·K critics' three products (the
+    critic loss) and their forward again (the target critics), every update; the three products of the critics the
+    actor loss evaluates (every d-th update).
     With Proxy Target, the proxy's three products K_proxy times an update and its forward once more (as π')."""
     algorithm = algorithm_class(config.algorithm)
     seeds, td3, actor = len(config.seeds), config.td3, config.actor
@@ -51,15 +52,18 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
         for product in products:
             counts[product] = counts.get(product, 0.0) + times
 
-    forward_rows = [(1, 1.0), (config.eval_episodes, (episode_steps or 1000) * evaluations),
-                    (DIAGNOSTIC_STATES, evaluations)] + ([(batch * td3.proxy_iterations, 1.0)] if proxy else [])
-    for index, (d_in, d_out) in enumerate(pairwise(actor.layer_sizes(state_dim, algorithm.readouts * action_dim))):
+    forward_rows = [(1, 1.0), (config.eval_episodes, (episode_steps or 1000) * evaluations)] + (
+        [(batch * td3.proxy_iterations, 1.0)] if proxy else [])
+    trained = pairwise(actor.layer_sizes(state_dim, algorithm.readouts * action_dim))
+    deployed = pairwise(actor.layer_sizes(state_dim, action_dim))  # the diagnostics' actor: the first readout
+    for index, ((d_in, d_out), (_, deployed_out)) in enumerate(zip(trained, deployed, strict=True)):
         steps = timesteps if index > 0 or actor.encoder in SPIKING_ENCODERS else 1
         update = layer_products(seeds, steps * batch, d_in, d_out)
         add(update, delayed)
         add(update[:1], 0.0 if proxy else 1.0)
         for rows, times in forward_rows:
             add(layer_products(seeds, steps * rows, d_in, d_out)[:1], times)
+        add(layer_products(seeds, steps * DIAGNOSTIC_STATES, d_in, deployed_out)[:1], evaluations)
     for d_in, d_out in pairwise([state_dim + action_dim, *td3.critic_hidden, 1]):
         every = layer_products(algorithm.critics * seeds, batch, d_in, d_out)
         add(every, 1.0)

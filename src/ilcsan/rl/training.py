@@ -31,7 +31,7 @@ from ..compute.process import ProcessSettings, apply_to_process
 from ..config import RunConfig
 from ..errors import TrainingDiverged
 from ..runs import provenance
-from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_params
+from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_state
 from ..runs.directory import RunDirectory, RunFileError, run_directories
 from ..snn.diagnostics import EvaluationActions
 from .algorithms import build_algorithm
@@ -262,14 +262,15 @@ class Trainer:
                          "resumes with a new episode (not bit-identical)")
 
     def policy_state(self, index: int) -> dict[str, Any]:
-        """The deployable actor of seed ``index``: weights, config, frozen normaliser, action bounds."""
+        """The deployable actor of seed ``index``: weights and persistent buffers, config, frozen normaliser, action
+        bounds."""
         config, environments, normalizer = self.config, self.environments, self.normalizer
         return {
             "task": config.task, "contact_forces": config.task_contact_forces(), "algorithm": config.algorithm,
             "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
             "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
             "action_offset": torch.as_tensor(environments.action_offset),
-            "actor": slice_params(self.agent.deployable_actor(), index, 1),
+            "actor": slice_state(self.agent.deployable_actor(), index, 1),
             "obs_mean": torch.as_tensor(normalizer.mean[index]), "obs_std": torch.as_tensor(normalizer.std[index]),
             "obs_clip": float(normalizer.clip), "step": self.step, "seed": config.seeds[index],
         }

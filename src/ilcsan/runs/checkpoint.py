@@ -2,11 +2,11 @@
 
 The run and its parts give and take their own state (``seed_state``/``load_seed_states``); this module owns the files:
 where they go, the checks a checkpoint must pass to resume, the per-seed slicing helpers the parts use
-(:func:`slice_params`, :func:`load_params`), and the two-phase commit.
+(:func:`slice_state`, :func:`load_state`: parameters and persistent buffers), and the two-phase commit.
 
 K seeds train in stacked weights (:mod:`ilcsan.rl.algorithms`), but each seed's folder holds an ordinary
-one-seed checkpoint: its slice of every weight and of Adam's moments (the critic's slices are twice as
-wide: seed k owns twins 2k and 2k+1), its normaliser, replay segments, random generators and running
+one-seed checkpoint: its slice of every weight, persistent buffer and Adam moment (the critics' slices are C times
+as wide: TD3's seed k owns twins 2k and 2k+1), its normaliser, replay segments, random generators and running
 episode. A checkpoint also holds the action bounds, so a policy is rebuilt from it without an environment.
 
 Multi-seed runs commit in two phases so that every seed always resumes from the same step: phase 1
@@ -37,26 +37,50 @@ training depends on the budget but where it stops), so a finished 200 000-step r
 
 
 # ----------------------------------------------------------------------------- per-seed slices
-def slice_params(module: torch.nn.Module, index: int, factor: int) -> dict[str, torch.Tensor]:
-    """Seed ``index``'s rows [factor·index, factor·(index+1)) of every parameter, on the CPU."""
-    return {name: p.detach()[factor * index: factor * (index + 1)].cpu().clone()
-            for name, p in module.named_parameters()}
+def module_state(module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """What a file must keep of ``module``: its parameters and persistent buffers by name (``state_dict``'s names
+    and order), the tensors themselves. Each carries the ensemble dimension first (the convention:
+    :mod:`ilcsan.snn.ensemble`); the non-persistent constants are rebuilt from the config and left out. A module
+    that breaks the convention (a tensor without the leading dimension its others have) is a bug, said here."""
+    state = dict(module.state_dict(keep_vars=True))
+    rows = {name: tensor.shape[0] if tensor.dim() else None for name, tensor in state.items()}
+    if None in rows.values() or len(set(rows.values())) > 1:
+        raise ValueError(f"{type(module).__name__}'s state does not carry one ensemble dimension first ({rows}): "
+                         "register constants with persistent=False")
+    return state
 
 
-def load_params(module: torch.nn.Module, slices: list[dict[str, torch.Tensor]], what: str) -> None:
-    """Stack the seeds' ``slices`` (of :func:`slice_params`) back into ``module``'s parameters."""
+def missing_state(module: torch.nn.Module, name: str) -> str:
+    """Why ``name`` of :func:`module_state` can be missing from a file, for its error: a parameter belongs to
+    every version of the same actor, a persistent buffer may be newer than the file."""
+    if name in dict(module.named_parameters()):
+        return f"no {name!r}: it is incomplete or belongs to another actor"
+    return (f"no {name!r}, a persistent buffer (state such as running statistics) this actor keeps: it was saved "
+            "by another actor or by an ilcsan that did not save buffers")
+
+
+def slice_state(module: torch.nn.Module, index: int, factor: int) -> dict[str, torch.Tensor]:
+    """Seed ``index``'s rows [factor·index, factor·(index+1)) of every tensor of :func:`module_state`, on the CPU."""
+    return {name: tensor.detach()[factor * index: factor * (index + 1)].cpu().clone()
+            for name, tensor in module_state(module).items()}
+
+
+def load_state(module: torch.nn.Module, slices: list[dict[str, torch.Tensor]], what: str) -> None:
+    """Stack the seeds' ``slices`` (of :func:`slice_state`) back into ``module``'s parameters and persistent
+    buffers, in place (compiled programs hold them). A file saved before buffers were kept loads into a module
+    without persistent buffers; one whose module has a buffer the file lacks is refused."""
     with torch.no_grad():
-        for name, param in module.named_parameters():
+        for name, tensor in module_state(module).items():
             parts = []
             for per_seed in slices:
                 if name not in per_seed:
-                    raise UserError(f"the {what} in the checkpoint has no {name!r}: it belongs to another actor")
+                    raise UserError(f"the {what} in the checkpoint has {missing_state(module, name)}")
                 parts.append(per_seed[name])
-            stacked = torch.cat(parts).to(param.device, param.dtype)
-            if stacked.shape != param.shape:
+            stacked = torch.cat(parts).to(tensor.device, tensor.dtype)
+            if stacked.shape != tensor.shape:
                 raise UserError(f"the checkpoint's {what} {name!r} has shape {tuple(stacked.shape)}, this run "
-                                f"needs {tuple(param.shape)}: it belongs to another actor or task")
-            param.copy_(stacked)
+                                f"needs {tuple(tensor.shape)}: it belongs to another actor or task")
+            tensor.copy_(stacked)
 
 
 def as_tensors(values: dict[str, Any]) -> dict[str, Any]:

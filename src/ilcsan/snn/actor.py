@@ -64,8 +64,9 @@ class _Actor(nn.Module):
         super().__init__()
         self.config, self.state_dim, self.action_dim = config, state_dim, action_dim
         self._engine = checked_engine(engine)
-        self.register_buffer("action_scale", torch.as_tensor(action_scale, dtype=torch.float32))
-        self.register_buffer("action_offset", torch.as_tensor(action_offset, dtype=torch.float32))
+        # constants of the task, not state (the convention: :mod:`ilcsan.snn.ensemble`)
+        self.register_buffer("action_scale", torch.as_tensor(action_scale, dtype=torch.float32), persistent=False)
+        self.register_buffer("action_offset", torch.as_tensor(action_offset, dtype=torch.float32), persistent=False)
 
     @property
     def engine(self) -> str:

@@ -4,6 +4,18 @@ Every trainable tensor carries a leading dimension K (the number of seeds traine
 ordinary run), so one batched matmul serves K agents (``torch.baddbmm``). Slice ``k`` is initialised
 from its own generator, in the same order whatever K is: seed k of a K-seed run starts from exactly the
 weights of a single run with seed k.
+
+Module state. What a module keeps between calls is of two kinds, and the kind decides where it is saved:
+
+* learned or accumulated state — every parameter and every *persistent* buffer (e.g. running statistics that
+  change during training) — carries the ensemble dimension first, like the parameters: K rows, or K·r when
+  each seed owns r rows (the twin critics: r = 2). Checkpoints and ``policy.pt`` cut it per seed and stack it
+  back (:func:`ilcsan.runs.checkpoint.slice_state`), and every export must fold it into the weights or refuse
+  (:mod:`ilcsan.deploy.state`);
+* constants derived from the task or the configuration — the action bounds, the intra-layer masks — are
+  registered with ``persistent=False``: they are rebuilt from the config, so they are in no file and carry no
+  ensemble dimension. They are still buffers, so ``.to(device)``, ``deepcopy`` and the compiled programs'
+  constants (:func:`ilcsan.compute.programs.module_tensors`) see them.
 """
 
 from __future__ import annotations

@@ -40,8 +40,9 @@ class IntraLayerConnections(nn.Module):
         self.mask, self.bias_at_first_step = mask, bias_at_first_step
         self.weight = nn.Parameter(torch.empty(ensemble, populations, population_size, population_size))
         self.bias = nn.Parameter(torch.empty(ensemble, populations, population_size))
-        self.register_buffer("weight_mask", weight_mask(population_size, mask))
-        self.register_buffer("bias_mask", torch.tensor(float(mask.bias)))
+        # constants of the configuration, not state (the convention: :mod:`ilcsan.snn.ensemble`)
+        self.register_buffer("weight_mask", weight_mask(population_size, mask), persistent=False)
+        self.register_buffer("bias_mask", torch.tensor(float(mask.bias)), persistent=False)
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:
         """U(−1/√P, 1/√P) like a Linear(P, P) per population, then the mask applied."""

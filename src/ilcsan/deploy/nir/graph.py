@@ -44,7 +44,7 @@ import numpy as np
 from ...config import INTRA_MASKS, NIR_TARGETS
 from ...errors import UserError
 from ...files import atomic_write_file
-from ..bundle import bundle_meta
+from ..bundle import bundle_arrays, bundle_meta
 
 FORMAT = "ilcsan-nir/2"
 DT = 1e-4  # seconds per simulation step, graph.metadata["dt"]
@@ -96,10 +96,6 @@ def block_diagonal(blocks: np.ndarray) -> np.ndarray:
     return out
 
 
-def _weights(tensor) -> np.ndarray:
-    return tensor.detach()[0].cpu().numpy().astype(np.float32)
-
-
 def _check_exportable(policy, target: str) -> None:
     config = policy.actor_config
     if target not in TARGETS:
@@ -121,12 +117,13 @@ def build_graph(policy, target: str = "portable", dt: float = DT):
         from .sinabs import sinabs_dialect
 
         return sinabs_dialect(build_graph(policy, "portable", dt=1.0), config.alpha_c, config.alpha_v)
-    weights = [_weights(layer.weight) for layer in actor.layers]
-    biases = [_weights(layer.bias) for layer in actor.layers]
+    arrays = bundle_arrays(policy)  # the actor's whole state, as every export reads it
+    weights = [arrays[f"layers.{index}.weight"] for index in range(len(actor.layers))]
+    biases = [arrays[f"layers.{index}.bias"] for index in range(len(actor.layers))]
     intra_bias = actor.intra is not None and INTRA_MASKS[config.intra].bias
     clock = intra_bias and not actor.intra.bias_at_first_step
     if intra_bias and not clock:  # the authors' timing: b_intra at every step, i.e. part of the output fc's bias
-        biases[-1] = biases[-1] + _weights(actor.intra.masked_bias()).reshape(-1)
+        biases[-1] = biases[-1] + arrays["intra.bias"].reshape(-1)
     if clock:  # the clock neuron: zero weights, bias V_th + 1 → spikes at every step
         weights[-1] = np.vstack([weights[-1], np.zeros((1, weights[-1].shape[1]), np.float32)])
         biases[-1] = np.append(biases[-1], np.float32(config.v_th + 1.0))
@@ -143,18 +140,18 @@ def build_graph(policy, target: str = "portable", dt: float = DT):
         intra = layer_names(len(weights))[2]
         recurrent = np.zeros((width, width), np.float32)
         size = policy.action_dim * config.population_out
-        recurrent[:size, :size] = block_diagonal(_weights(actor.intra.masked_weight()))
+        recurrent[:size, :size] = block_diagonal(arrays["intra.weight"])
         if clock:
-            recurrent[:size, size] = _weights(actor.intra.masked_bias()).reshape(-1)
+            recurrent[:size, size] = arrays["intra.bias"].reshape(-1)
         nodes[intra] = nir.Linear(weight=recurrent)
         edges += [(previous, intra), (intra, previous)]
     if config.decoder == "fr":
         nodes[OUTPUT] = nir.Output(output_type=np.array([width]))
         edges.append((previous, OUTPUT))
     else:
-        decoder = block_diagonal(_weights(actor.decoder.weight)[:, None, :])
+        decoder = block_diagonal(arrays["decoder.weight"][:, None, :])
         decoder = np.hstack([decoder, np.zeros((decoder.shape[0], width - decoder.shape[1]), np.float32)])
-        nodes[DECODER] = nir.Affine(weight=decoder, bias=_weights(actor.decoder.bias))
+        nodes[DECODER] = nir.Affine(weight=decoder, bias=arrays["decoder.bias"])
         edges.append((previous, DECODER))
         previous = DECODER
         if target == "generic":
@@ -163,27 +160,25 @@ def build_graph(policy, target: str = "portable", dt: float = DT):
             previous = INTEGRATOR
         nodes[OUTPUT] = nir.Output(output_type=np.array([policy.action_dim]))
         edges.append((previous, OUTPUT))
-    return nir.NIRGraph(nodes=nodes, edges=edges, metadata=host_metadata(policy, clock, target, dt))
+    return nir.NIRGraph(nodes=nodes, edges=edges, metadata=host_metadata(policy, arrays, clock, target, dt))
 
 
-def host_metadata(policy, clock: bool, target: str, dt: float) -> dict[str, Any]:
+def host_metadata(policy, arrays: dict[str, np.ndarray], clock: bool, target: str, dt: float) -> dict[str, Any]:
     """What the host computes around the graph: the deploy bundle's meta (:func:`~ilcsan.deploy.bundle.bundle_meta`:
     configuration, normaliser, action bounds) plus the graph's own facts, as the JSON string ``host``; the
-    encoder's receptive fields and the ``fr`` decoder's weights as arrays. ``dt`` (seconds) and ``timesteps``
-    are top-level keys: what a consumer must be given and how many steps to run."""
-    actor, config = policy.actor, policy.actor_config
+    encoder's receptive fields and the ``fr`` decoder's weights as arrays, taken from the policy's bundle ``arrays``.
+    ``dt`` (seconds) and ``timesteps`` are top-level keys: what a consumer must be given and how many steps to run."""
+    config = policy.actor_config
     integrator = "none" if config.decoder == "fr" else ("graph" if target == "generic" else "host")
     host = dict(bundle_meta(policy), action_dim=policy.action_dim, clock_neuron=bool(clock), target=target,
                 integrator=integrator, graph_output=OUTPUT,
                 timing="Euler steps of dt seconds; feed-forward edges zero lag; the recurrent intra edge one step")
     metadata: dict[str, Any] = {"format": FORMAT, "dt": float(dt), "timesteps": config.timesteps,
                                 "host": json.dumps(host)}
-    if actor.encoder.mu is not None:
-        metadata["encoder_mu"] = _weights(actor.encoder.mu)
-        metadata["encoder_sigma"] = _weights(actor.encoder.sigma)
+    if "encoder.mu" in arrays:
+        metadata["encoder_mu"], metadata["encoder_sigma"] = arrays["encoder.mu"], arrays["encoder.sigma"]
     if config.decoder == "fr":
-        metadata["decoder_weight"] = _weights(actor.decoder.weight)
-        metadata["decoder_bias"] = _weights(actor.decoder.bias)
+        metadata["decoder_weight"], metadata["decoder_bias"] = arrays["decoder.weight"], arrays["decoder.bias"]
     return metadata
 
 

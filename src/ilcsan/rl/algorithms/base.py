@@ -29,7 +29,7 @@ from torch import nn
 from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ...compute.programs import CompiledPerShape, prepare_compilation
 from ...config import ActorConfig, RunConfig, TD3Config
-from ...runs.checkpoint import load_params, slice_params
+from ...runs.checkpoint import load_state, module_state, slice_state
 from ...snn.actor import build_actor
 from ..adam import Adam
 from .critic import Critics
@@ -122,10 +122,10 @@ class OffPolicyAlgorithm:
         if self.readouts == 1:
             return self.actor
         deployed = self._build_actor(1)
-        parts = first_readout(dict(self.actor.named_parameters()), deployed)
+        parts = first_readout(module_state(self.actor), deployed)
         with torch.no_grad():
-            for name, param in deployed.named_parameters():
-                param.copy_(parts[name])
+            for name, tensor in module_state(deployed).items():
+                tensor.copy_(parts[name])
         return deployed
 
     # ---------------------------------------------------------------------- the training loop's
@@ -179,7 +179,7 @@ class OffPolicyAlgorithm:
 
     def seed_state(self, index: int) -> dict[str, Any]:
         """Seed ``index``'s networks, Adam states, update count and update-noise generator."""
-        state: dict[str, Any] = {key: slice_params(getattr(self, key), index, rows)
+        state: dict[str, Any] = {key: slice_state(getattr(self, key), index, rows)
                                  for key, _, rows in self.networks()}
         state["actor_optimizer"] = self.actor_adam.seed_state(index, 1)
         state["critic_optimizer"] = self.critic_adam.seed_state(index, self.critics)
@@ -190,7 +190,7 @@ class OffPolicyAlgorithm:
     def load_seed_states(self, states: Sequence[dict[str, Any]]) -> None:
         """Stack the seeds' :meth:`seed_state` dicts into this agent (its seeds in the same order)."""
         for key, what, _ in self.networks():
-            load_params(getattr(self, key), [state[key] for state in states], what)
+            load_state(getattr(self, key), [state[key] for state in states], what)
         self.actor_adam.load_seed_states([state["actor_optimizer"] for state in states])
         self.critic_adam.load_seed_states([state["critic_optimizer"] for state in states])
         for generator, state in zip(self.noise_generators, states, strict=True):
@@ -199,8 +199,9 @@ class OffPolicyAlgorithm:
 
 
 def first_readout(tensors: Mapping[str, torch.Tensor], deployed: nn.Module) -> dict[str, torch.Tensor]:
-    """The part of an actor's ``tensors`` (by parameter name) with several readouts per action that ``deployed``, the
-    same actor with one readout, holds: each cut to its parameter's shape from the start, since the first readout's
-    output populations come first in every tensor they occupy (output layer rows, intra-layer blocks, decoder)."""
-    return {name: tensors[name][tuple(slice(0, size) for size in param.shape)]
-            for name, param in deployed.named_parameters()}
+    """The part of an actor's ``tensors`` (its :func:`~ilcsan.runs.checkpoint.module_state` by name) with several
+    readouts per action that ``deployed``, the same actor with one readout, holds: each cut to its shape there from
+    the start, since the first readout's output populations come first in every tensor they occupy (output layer
+    rows, intra-layer blocks, decoder, the output layer's normalisation)."""
+    return {name: tensors[name][tuple(slice(0, size) for size in tensor.shape)]
+            for name, tensor in module_state(deployed).items() if name in tensors}

@@ -36,7 +36,7 @@ from torch import nn
 from ...compute.programs import CompiledPerShape, as_function, as_program, module_tensors, value_and_grads
 from ...config import RunConfig, TD3Config
 from ...errors import UserError
-from ...runs.checkpoint import load_params, slice_params
+from ...runs.checkpoint import load_state, slice_state
 from ..adam import Adam, adam_
 from .base import OffPolicyAlgorithm
 
@@ -168,10 +168,10 @@ class SAC(OffPolicyAlgorithm):
 
     # --------------------------------------------------------------------------- checkpoints
     def seed_state(self, index: int) -> dict[str, Any]:
-        return {**super().seed_state(index), "entropy": slice_params(self.entropy, index, 1),
+        return {**super().seed_state(index), "entropy": slice_state(self.entropy, index, 1),
                 "entropy_optimizer": self.entropy_adam.seed_state(index, 1)}
 
     def load_seed_states(self, states: Sequence[dict[str, Any]]) -> None:
         super().load_seed_states(states)
-        load_params(self.entropy, [state["entropy"] for state in states], "entropy coefficient")
+        load_state(self.entropy, [state["entropy"] for state in states], "entropy coefficient")
         self.entropy_adam.load_seed_states([state["entropy_optimizer"] for state in states])

@@ -39,7 +39,7 @@ from torch import nn
 from ...compute.programs import CompiledPerShape
 from ...config import NOISY_RETURN_REFERENCE, TD3Config
 from ...errors import UserError
-from ...runs.checkpoint import load_params, slice_params
+from ...runs.checkpoint import load_state, slice_state
 from ...snn.noise import NeuronNoise, coloured_noise, fft_length, window_covariance
 from ..adam import Adam
 from .base import Exploration, MethodContext
@@ -220,11 +220,11 @@ class NoisySAN(Exploration):
         return self.module.penalty(parameters[0], batch["penalty_weights"])
 
     def seed_state(self, index: int) -> dict[str, Any]:
-        return {"parameters": slice_params(self.module, index, 1), "optimizer": self.adam.seed_state(index, 1),
+        return {"parameters": slice_state(self.module, index, 1), "optimizer": self.adam.seed_state(index, 1),
                 "streams": self.module.stream_state(index)}
 
     def load_seed_states(self, states) -> None:
-        load_params(self.module, [state["parameters"] for state in states], "decoder noise scale")
+        load_state(self.module, [state["parameters"] for state in states], "decoder noise scale")
         self.adam.load_seed_states([state["optimizer"] for state in states])
         for index, state in enumerate(states):
             self.module.load_stream_state(index, state["streams"])
