@@ -12,7 +12,6 @@ import copy
 import numpy as np
 import pytest
 import torch
-from ilcsan.rl.td3 import TD3Agent
 from spiking_policies import observations, random_policy
 
 import ilcsan.snn.actor
@@ -23,6 +22,7 @@ from ilcsan.deploy import DeployedActor, state
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
 from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
+from ilcsan.rl.algorithms import TD3
 from ilcsan.runs.checkpoint import load_state, module_state, slice_state
 from ilcsan.snn.actor import SpikingActor, build_actor
 
@@ -48,11 +48,11 @@ def running_mean_actors(monkeypatch):
     monkeypatch.setattr(ilcsan.snn.actor, "SpikingActor", RunningMeanActor)
 
 
-def _agent(seeds) -> TD3Agent:
-    return TD3Agent(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds)
+def _agent(seeds) -> TD3:
+    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds)
 
 
-def _train_once(agent: TD3Agent) -> None:
+def _train_once(agent: TD3) -> None:
     """Two updates on a batch whose observations differ per seed (their means too)."""
     rng = np.random.default_rng(0)
     k = len(agent.seeds)
