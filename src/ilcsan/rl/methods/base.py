@@ -145,6 +145,9 @@ class Normalization(Method):
     steps of the learning rate's size; the update sets it to exactly zero, so they stay where they are.
     """
 
+    def __init__(self, context: MethodContext):
+        return None
+
     def loss_options(self, record: list) -> dict[str, Any]:
         return {}
 
