@@ -12,16 +12,17 @@ update, the recalibration, the fold) is :mod:`ilcsan.snn.normalization`.
   scale of it: b then drifts by up to the learning rate per actor step, a random walk that the running mean
   follows, and that made eager and compiled updates part after a few steps.)
 * A Polyak-averaged target actor follows the online actor's running μ̂, σ̂² as it follows its weights,
-  b' ← τb + (1 − τ)b', at the same moments (TD3: each delayed step; DDPG: each update). Its P_μ, P_σ² are never read
-  and stay as they started. (A choice: the authors' code averages the target's weights only, so its running
-  statistics stay at μ̂ = 0, σ̂² = 1; following them keeps the target actor a slow copy of the actor that acts.)
+  b' ← τb + (1 − τ)b', at the same moments (TD3: each delayed step; DDPG: each update), as in the authors' code (whose
+  running statistics are parameters without gradient, so its Polyak loop over the parameters carries them). Its
+  P_μ, P_σ² are never read and stay as they started.
 * Every :data:`RECALIBRATION_INTERVAL` environment steps, after that step's updates, the running statistics are
   replaced by the exact ones of :data:`RECALIBRATION_BATCHES` replayed minibatches of
   :data:`RECALIBRATION_BATCH_SIZE` states, normalised by the observation normaliser, layer by layer
   (:meth:`~ilcsan.snn.actor.SpikingActor.recalibrated_statistics`; P_μ, P_σ² kept), as the authors' code does
-  every 5 000 steps with 100 batches of 256. Only the online actor's: its target follows them by the Polyak
-  average. The states are drawn by generators of their own, seeded from the run seed and the step, so that the run's
-  random streams are untouched.
+  every 5 000 steps with 100 batches of 256 (there in one pass per batch, each layer normalised by the statistics
+  pooled so far; here exact, one pass per batch and layer, so L times the work). Only the online actor's: its target
+  follows them by the Polyak average. The states are drawn by generators of their own, seeded from the run seed and
+  the step, so that the run's random streams are untouched. The passes run eagerly, also in a compiled run.
 * Everything else — acting, evaluation, the target actor, the critic's target values (SAC's next action), the
   deployed actor — normalises with the running statistics; exports fold them into the weights
   (:data:`ilcsan.deploy.state.FOLDS`), so a deployed actor stays additions-only.
