@@ -244,12 +244,14 @@ def test_an_interrupted_run_resumes_to_the_same_metrics(often, tmp_path, monkeyp
 @pytest.mark.parametrize("algorithm", ["td3", "sac"])
 def test_the_policy_acts_as_the_trained_actor_and_every_export_as_the_policy(often, tmp_path, algorithm):
     """After 250 steps (recalibrated at 100 and 200, Kalman-updated since 100) policy.pt holds the deployed actor's
-    parameters and running statistics (SAC: the mean's populations) and predicts as the agent acts; the npz bundle
+    parameters and running statistics (SAC: the mean's populations) and predicts as the agent acts, as checkpoint.pt
+    read as a policy does; the npz bundle
     (the additions-only numpy runtime) and the NIR graph, with the normalisation folded into the weights, act as
     predict."""
     trainer = _stepped(_run(algorithm), tmp_path / "run", 250)
     try:
         trainer.checkpoints.save_policy(0, trainer.policy_state(0), trainer.step)
+        trainer.checkpoints.save(trainer)
         policy = load(tmp_path / "run" / "seed0" / "policy.pt")
         deployed = trainer.agent.deployable_actor()
         expected_state = first_readout({name: tensor[:1] for name, tensor in module_state(trainer.agent.actor).items()},
@@ -264,6 +266,7 @@ def test_the_policy_acts_as_the_trained_actor_and_every_export_as_the_policy(oft
         trainer.close()
     predicted = policy.predict(raw)
     np.testing.assert_allclose(predicted, acting, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(load(tmp_path / "run" / "seed0" / "checkpoint.pt").predict(raw), predicted)
     arrays, meta = bundle_arrays(policy), bundle_meta(policy)
     assert meta["normalization"] == "none" and not any(name.startswith("norms.") for name in arrays)
     runtime = DeployedActor.from_arrays(arrays, meta)
