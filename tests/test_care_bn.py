@@ -317,12 +317,3 @@ def test_config_round_trip_and_a_config_saved_before_the_setting_loads_as_none()
     assert all(actor_config(preset).normalization == "none" for preset in (*SPIKING_PRESETS, "dan"))
     with pytest.raises(UserError, match="--normalization"):
         actor_config("ilc-san", normalization="batch")
-
-
-def test_training_refuses_care_bn_until_it_runs_it():
-    from ilcsan.config import RunConfig
-    from ilcsan.rl.validation import validate_run
-
-    validate_run(RunConfig(actor=actor_config("popsan")))
-    with pytest.raises(UserError, match="training does not run it yet"):
-        validate_run(RunConfig(actor=actor_config("popsan", normalization="care-bn")))

@@ -164,7 +164,8 @@ NORMALIZATION_PAPERS: dict[str, str] = {
     "none": "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)",
     "care-bn": "CaRe-BN (Xu et al., ICLR 2026): batch normalisation of each synaptic layer's current, pooled over "
                "the batch and the T steps; batch statistics in the actor's loss, running statistics (Kalman-style "
-               "gain, periodic recalibration) when acting (:mod:`ilcsan.snn.normalization`)",
+               "gain, periodic recalibration) when acting (:mod:`ilcsan.snn.normalization`; training: "
+               ":mod:`ilcsan.rl.methods.care_bn`)",
 }
 """How a spiking actor normalises each synaptic layer's current before its neurons (``--normalization``), each with
 its paper. An actor saved before this setting existed has ``none``, the default."""
@@ -310,8 +311,10 @@ class ActorConfig:
     learning_rate: float = setting(1e-4, "actor learning rate; DAN's is 1e-3", flag="actor-lr", bounds="positive")
     normalization: str = setting("none", "normalisation of each spiking layer's synaptic current before its neurons: "
                                          "none (the paper), or care-bn (CaRe-BN, Xu et al. 2026: batch statistics "
-                                         "in the actor's loss, Kalman-updated running statistics when acting; on the "
-                                         "output populations the feed-forward current only; spiking actors only)",
+                                         "in the actor's loss, running statistics moved by a Kalman-style gain after "
+                                         "each actor step and recalibrated from the replay every 5000 steps when "
+                                         "acting; on the output populations the feed-forward current only; folded "
+                                         "into the weights on export; spiking actors only)",
                                  choices=NORMALIZATIONS)
 
     @property

@@ -18,12 +18,14 @@ from typing import Any
 import torch
 from torch import nn
 from torch.func import functional_call
+from torch.utils._pytree import tree_map_only
 
 
 def value_and_grads(loss: Callable[..., torch.Tensor], *args, wrt: tuple[int, ...] = (0,), has_aux: bool = False):
     """``torch.func.grad_and_value(loss, argnums=wrt, has_aux=has_aux)(*args)`` for arguments ``wrt`` that are lists
     of tensors: (the gradients, one list per argument in ``wrt``, or the one list; the loss, detached). With
-    ``has_aux`` the loss function returns (loss, aux) and the second item is (loss, aux detached).
+    ``has_aux`` the loss function returns (loss, aux) and the second item is (loss, aux detached); aux is a tensor or
+    nested tuples and lists of them (e.g. the batch statistics of a normalising actor's pass).
 
     Written with ``torch.autograd.grad`` on detached copies made leaves, which dynamo traces into one graph when
     ``torch._dynamo.config.trace_autograd_ops`` is on (:class:`DirectProgram` turns it on while it traces).
@@ -44,7 +46,8 @@ def value_and_grads(loss: Callable[..., torch.Tensor], *args, wrt: tuple[int, ..
         groups.append(flat[:len(args[index])])
         flat = flat[len(args[index]):]
     grads = tuple(groups) if len(wrt) > 1 else groups[0]
-    return grads, ((value.detach(), aux.detach()) if has_aux else value.detach())
+    return grads, ((value.detach(), tree_map_only(torch.Tensor, torch.Tensor.detach, aux)) if has_aux
+                   else value.detach())
 
 
 def as_function(module: nn.Module, tensors: Sequence[torch.Tensor], names: Sequence[str]) -> Callable:

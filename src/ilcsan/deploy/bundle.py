@@ -41,7 +41,7 @@ from ..files import atomic_savez
 from .policy import Policy
 from .quantize import quantize_bundle
 from .runtime import CONFIG_META_KEYS
-from .state import export_state
+from .state import export_state, exported_config
 
 WEIGHTS = tuple(WEIGHT_FORMATS)
 """Weight formats of a bundle: float32, or int8 with a float32 scale per layer (:mod:`ilcsan.deploy.quantize`)."""
@@ -52,9 +52,10 @@ FIXED_META = {"v_reset": 0.0, "v_reset_li": 0.0, "output": "tanh"}
 
 
 def bundle_meta(policy: Policy) -> dict[str, Any]:
-    """The bundle's metadata (JSON-serialisable): the actor's configuration under the bundle's keys, its
-    intra-layer mask, the task, the frozen normaliser and the action bounds."""
-    config = policy.actor_config
+    """The bundle's metadata (JSON-serialisable): the actor's configuration under the bundle's keys (as exported:
+    its normalisation folded into the weights, :func:`~ilcsan.deploy.state.exported_config`), its intra-layer mask,
+    the task, the frozen normaliser and the action bounds."""
+    config = exported_config(policy.actor_config)
     meta = {CONFIG_META_KEYS.get(name, name): value for name, value in config.to_dict().items()}
     meta.update(FIXED_META, intra_mask=INTRA_MASKS[config.intra]._asdict(), task=policy.task,
                 contact_forces=policy.contact_forces,

@@ -7,26 +7,50 @@ which are built from a bundle) and the NIR graph (:mod:`ilcsan.deploy.nir`) take
 :mod:`ilcsan.snn.ensemble`) acts on the network — running statistics normalise what a layer receives — and a
 deployed network has no place for it: an export folds it into the weights it acts on, as batch normalisation
 folds into the affine layer beside it. :data:`FOLDS` is the one place such a fold goes; a buffer without one is
-refused, naming it.
+refused, naming it. With every normalisation folded, the exported actor normalises nothing
+(:func:`exported_config`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
 
+from ..config import ActorConfig
 from ..errors import UserError
 from ..runs.checkpoint import module_state
+from ..snn.normalization import RUNNING_BUFFERS, NormStatistics, fold_into_linear
 
 Fold = Callable[[dict[str, torch.Tensor], str], dict[str, torch.Tensor]]
 
-FOLDS: dict[str, Fold] = {}
+def fold_normalization(state: dict[str, torch.Tensor], name: str) -> dict[str, torch.Tensor]:
+    """CaRe-BN's normalisation ``norms.<l>`` (the prefix of buffer ``name``) folded into synaptic layer
+    ``layers.<l>``, whose current it normalises: W' = s W, b' = s (b − μ̂) + β with s = γ / √(σ̂² + ε)
+    (:func:`~ilcsan.snn.normalization.fold_into_linear`), and every tensor of ``norms.<l>`` (γ, β and the four
+    buffers) removed. One fold per layer: for the layer's other buffers, already gone, ``state`` is returned as it
+    is. A buffer of that name outside such a normalisation is refused (:func:`unfoldable`)."""
+    if name not in state:
+        return state
+    prefix = name.rsplit(".", 1)[0]
+    layer = "layers." + prefix.rsplit(".", 1)[-1]
+    needed = [f"{prefix}.{part}" for part in (*RUNNING_BUFFERS, "gamma", "beta")] + [f"{layer}.weight", f"{layer}.bias"]
+    if not prefix.startswith("norms.") or any(key not in state for key in needed):
+        raise unfoldable(name)
+    statistics = NormStatistics(state[f"{prefix}.running_mean"], state[f"{prefix}.running_var"])
+    weight, bias = fold_into_linear(state[f"{layer}.weight"], state[f"{layer}.bias"], statistics,
+                                    state[f"{prefix}.gamma"], state[f"{prefix}.beta"])
+    kept = {key: tensor for key, tensor in state.items() if not key.startswith(prefix + ".")}
+    return {**kept, f"{layer}.weight": weight, f"{layer}.bias": bias}
+
+
+FOLDS: dict[str, Fold] = {buffer: fold_normalization for buffer in RUNNING_BUFFERS}
 """How an export folds a persistent buffer, by the last part of its name (``running_mean`` for
-``layers.0.norm.running_mean``): ``fold(state, name)`` returns seed 0's ``state`` (names → tensors without the
-ensemble dimension) with buffer ``name`` folded into the parameters it acts on and removed. No actor has a
-persistent buffer yet, so there is no fold yet (CaRe-BN's running statistics will bring the first)."""
+``norms.0.running_mean``): ``fold(state, name)`` returns seed 0's ``state`` (names → tensors without the
+ensemble dimension) with buffer ``name`` folded into the parameters it acts on and removed. CaRe-BN's four buffers
+(:data:`~ilcsan.snn.normalization.RUNNING_BUFFERS`) fold with their layer's γ and β (:func:`fold_normalization`)."""
 
 
 def fold_buffers(state: dict[str, torch.Tensor], buffers: Sequence[str]) -> dict[str, torch.Tensor]:
@@ -35,10 +59,15 @@ def fold_buffers(state: dict[str, torch.Tensor], buffers: Sequence[str]) -> dict
     for name in buffers:
         fold = FOLDS.get(name.rsplit(".", 1)[-1])
         if fold is None:
-            raise UserError(f"the actor keeps {name!r}, a persistent buffer that no export knows how to fold into "
-                            "its weights (ilcsan.deploy.state.FOLDS), so it cannot be exported")
+            raise unfoldable(name)
         state = fold(state, name)
     return state
+
+
+def unfoldable(name: str) -> UserError:
+    """The error for a persistent buffer no fold knows."""
+    return UserError(f"the actor keeps {name!r}, a persistent buffer that no export knows how to fold into its "
+                     "weights (ilcsan.deploy.state.FOLDS), so it cannot be exported")
 
 
 def masked(actor: torch.nn.Module, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -49,6 +78,12 @@ def masked(actor: torch.nn.Module, state: dict[str, torch.Tensor]) -> dict[str, 
         return state
     return {**state, "intra.weight": state["intra.weight"] * intra.weight_mask,
             "intra.bias": state["intra.bias"] * intra.bias_mask}
+
+
+def exported_config(config: ActorConfig) -> ActorConfig:
+    """The configuration of the actor an export holds: ``config`` without normalisation, since every normalisation
+    is folded into the weights (:data:`FOLDS`), so that a bundle's meta describes its arrays."""
+    return dataclasses.replace(config, normalization="none")
 
 
 def export_state(actor: torch.nn.Module) -> dict[str, np.ndarray]:

@@ -142,7 +142,8 @@ class Trainer:
         return minutes > 0 and self._clock.since_checkpoint() >= 60.0 * minutes
 
     def train_step(self) -> dict[str, float] | None:
-        """One environment step per seed: act, step, store, and the updates when they are due."""
+        """One environment step per seed: act, step, store, the updates when they are due, then what the training
+        methods do every so many steps (:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.after_step`)."""
         td3 = self.config.td3
         transition, finished = self.environments.step(self._explore(), step=self.step + 1)
         self.replay.add(*transition)
@@ -152,9 +153,11 @@ class Trainer:
             self.agent.end_episode(index)
             self.normalizer.update(self.environments.observations, mask=np.arange(len(self.environments)) == index)
         self.step += 1
+        losses = None
         if self.step >= td3.update_after and self.step % td3.update_every == 0:
-            return self._learn()
-        return None
+            losses = self._learn()
+        self.agent.after_step(self.step, self.replay, self.normalizer)  # e.g. CaRe-BN's recalibration
+        return losses
 
     def _explore(self) -> np.ndarray:
         """Uniform random actions during the first start_steps, then the algorithm's (TD3's: π(s) + N(0, σ²) clipped

@@ -17,10 +17,6 @@ def validate_run(config: RunConfig) -> None:
     check_settings(config)
     check_settings(config.td3)
     algorithm_class(config.algorithm).check(config)
-    if config.actor.normalization != "none":  # until training runs CaRe-BN's batch statistics, Kalman update and
-        # recalibration, a run would silently act and learn with the initial running statistics
-        raise UserError(f"--normalization {config.actor.normalization}: the actor has it, training does not run it "
-                        "yet; use --normalization none")
     if not config.seeds:
         raise UserError("give at least one seed")
     if len(set(config.seeds)) != len(config.seeds):

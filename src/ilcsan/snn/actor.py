@@ -209,10 +209,16 @@ class SpikingActor(_Actor):
         return self._run_layer_major(state, noise, membranes, choice)
 
     def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None, with_preaction: bool = False,
-                norm_statistics: NormStatisticsChoice = "running") -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+                norm_statistics: NormStatisticsChoice = "running", used_statistics: list | None = None,
+                ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given;
-        ``with_preaction`` also returns the pre-tanh output O (K, B, M); ``norm_statistics`` as for :meth:`run`."""
+        ``with_preaction`` also returns the pre-tanh output O (K, B, M); ``norm_statistics`` as for :meth:`run`;
+        a ``used_statistics`` list receives the statistics each layer normalised with
+        (:attr:`ActorOutput.norm_statistics`: how the actor's loss hands its batch statistics to the Kalman update,
+        since a functional call of the module reaches its forward only)."""
         output = self.run(state, noise=noise, norm_statistics=norm_statistics)
+        if used_statistics is not None:
+            used_statistics.append(output.norm_statistics)
         return (output.action, output.readout) if with_preaction else output.action
 
     # ------------------------------------------------------------------ CaRe-BN's running statistics

@@ -21,8 +21,10 @@ Which (μ, σ²) a layer uses:
 With fixed statistics the normalisation is an affine map X̂ = s X + h (:func:`norm_affine`), which
 :func:`fold_into_linear` moves into the layer's weight and bias, so an exported actor stays additions-only.
 
-Every function here is pure (new tensors out, nothing changed in place); :class:`CareBatchNorm` holds one layer's
-γ, β (parameters) and μ̂, σ̂², P_μ, P_σ² (persistent buffers, ensemble dimension K first) and applies them.
+Every function here is pure (new tensors out, nothing changed in place) but :func:`kalman_update_`, which writes
+:func:`kalman_update`'s result into the tensors it is given (a layer's buffers, or the training update's views of
+them); :class:`CareBatchNorm` holds one layer's γ, β (parameters) and μ̂, σ̂², P_μ, P_σ² (persistent buffers, ensemble
+dimension K first) and applies them.
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ EPSILON = 1e-5
 """ε in √(σ² + ε), the authors' value."""
 INNOVATION_MOMENTUM = 0.8
 """m in P ← m P + (1 − m) δ², the exponential average of the innovation's square (the authors' value)."""
+RUNNING_BUFFERS = ("running_mean", "running_var", "mean_innovation", "var_innovation")
+"""The names of :class:`CareBatchNorm`'s persistent buffers μ̂, σ̂², P_μ, P_σ², in :class:`RunningStatistics`'
+order."""
 
 
 class NormStatistics(NamedTuple):
@@ -111,6 +116,13 @@ def kalman_update(running: RunningStatistics, batch: NormStatistics, samples: in
     return RunningStatistics(mean, var, mean_innovation, var_innovation)
 
 
+def kalman_update_(running: RunningStatistics, batch: NormStatistics, samples: int,
+                   momentum: float = INNOVATION_MOMENTUM) -> None:
+    """:func:`kalman_update` written into the tensors of ``running``, in place."""
+    for tensor, value in zip(running, kalman_update(running, batch, samples, momentum), strict=True):
+        tensor.copy_(value)
+
+
 def _kalman_step(estimate: torch.Tensor, innovation_var: torch.Tensor, observation: torch.Tensor,
                  noise: torch.Tensor, momentum: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(estimate + K δ, P) for δ = observation − estimate, P = m P + (1 − m) δ², K = P / (P + noise)."""
@@ -161,7 +173,7 @@ class CareBatchNorm(nn.Module):
         self.threshold, self.eps, self.momentum = threshold, eps, momentum
         self.gamma = nn.Parameter(torch.empty(ensemble, features))
         self.beta = nn.Parameter(torch.empty(ensemble, features))
-        for name in ("running_mean", "running_var", "mean_innovation", "var_innovation"):
+        for name in RUNNING_BUFFERS:
             self.register_buffer(name, torch.empty(ensemble, features))
         self.reset_parameters()
 
@@ -191,9 +203,7 @@ class CareBatchNorm(nn.Module):
     @torch.no_grad()
     def kalman_update_(self, batch: NormStatistics, samples: int) -> None:
         """:func:`kalman_update` of the buffers toward ``batch`` (statistics of ``samples`` states), in place."""
-        for buffer, value in zip(self.running_state(), kalman_update(self.running_state(), batch, samples,
-                                                                     self.momentum), strict=True):
-            buffer.copy_(value)
+        kalman_update_(self.running_state(), batch, samples, self.momentum)
 
     @torch.no_grad()
     def set_running_(self, statistics: NormStatistics) -> None:

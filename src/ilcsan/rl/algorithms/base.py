@@ -10,6 +10,10 @@ owns its networks, their Adam states, its random streams and its part of a check
 - An update is a pure function of the agent's tensors (parameters, targets, Adam state), run eagerly or as one
   compiled program (:func:`~ilcsan.compute.programs.as_program`); its random numbers are drawn outside, from the
   seeds' own generators, and passed in with the minibatch.
+- The actor's persistent buffers (CaRe-BN's running statistics) are state the update reads and writes like its
+  parameters: every pass of the actor or target actor inside an update takes them from the tensors passed in
+  (:meth:`OffPolicyAlgorithm.stateful`), and the actor's normalisation method (:class:`~ilcsan.rl.methods.
+  Normalization`, chosen by ``actor.normalization``) writes them in place after the actor's step.
 - The actor reads ``readouts`` values per action dimension from its output populations: 1 for the deterministic
   actors of TD3 and DDPG (a = offset + scale · tanh(O)), 2 for SAC's Gaussian (a mean and a log-std). The
   deterministic action — for evaluation, diagnostics and deployment — is always the first readout squashed, so the
@@ -27,11 +31,12 @@ import torch
 from torch import nn
 
 from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
-from ...compute.programs import CompiledPerShape, prepare_compilation
+from ...compute.programs import CompiledPerShape, as_function, prepare_compilation
 from ...config import ActorConfig, RunConfig, TD3Config
 from ...runs.checkpoint import load_state, module_state, slice_state
 from ...snn.actor import build_actor
 from ..adam import Adam
+from ..methods import Method, MethodContext, normalization_method
 from .critic import Critics
 
 NOISE_SALT = 3
@@ -52,8 +57,9 @@ class OffPolicyAlgorithm:
 
     @classmethod
     def check(cls, config: RunConfig) -> None:
-        """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with."""
-        return None
+        """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with (here: one the
+        actor's normalisation method cannot)."""
+        normalization_method(config.actor.normalization).check(config.task, config.td3)
 
     @classmethod
     def policy_delay(cls, td3: TD3Config) -> int:
@@ -87,6 +93,15 @@ class OffPolicyAlgorithm:
         self.offset = torch.as_tensor(self.action_offset, dtype=torch.float32, device=self.device)
         self.updates = 0
         self._critic_target_views: list[torch.Tensor] | None = None
+        self._buffer_views: dict[int, list[torch.Tensor]] = {}
+        self._state_names: dict[int, list[str]] = {}
+        self.normalization = normalization_method(actor_config.normalization)(self.method_context())
+        self.actor_buffer_names = list(persistent_buffers(self.actor))
+        self.followed_buffers = self.normalization.followed_buffers(self.actor_buffer_names)
+        """The actor's buffers a Polyak-averaged target actor follows (by name; the target's are named alike)."""
+        cancelled = set(self.normalization.cancelled_parameters(self.actor_adam.names))
+        self.cancelled_parameters = [index for index, name in enumerate(self.actor_adam.names) if name in cancelled]
+        """Positions of the actor's parameters whose gradient the update sets to exactly zero."""
 
     def _build_actor(self, readouts: int) -> nn.Module:
         """The actor ensemble with ``readouts`` output populations per action dimension; the squashing bounds of
@@ -96,6 +111,16 @@ class OffPolicyAlgorithm:
         offset = np.concatenate([self.action_offset, np.zeros(padding * self.action_dim)])
         return build_actor(self.config, self.state_dim, readouts * self.action_dim, scale, offset, self.seeds,
                            engine=self.engine, matmul=self.matmul).to(self.device)
+
+    def method_context(self) -> MethodContext:
+        """What a training method is built from: this agent's actor, settings, task and seeds."""
+        return MethodContext(self.actor, self.config, self.td3, self.task, self.episode_steps, tuple(self.seeds),
+                             self.state_dim, self.action_dim, self.action_scale, self.action_offset, self.device,
+                             self.compiled, self.matmul)
+
+    def methods(self) -> list[Method]:
+        """The training methods this agent runs (every algorithm: the actor's normalisation)."""
+        return [self.normalization]
 
     @property
     def execution(self) -> str:
@@ -141,6 +166,13 @@ class OffPolicyAlgorithm:
         """Arrays added to each minibatch, drawn after its transitions from the same generators."""
         return {}
 
+    def after_step(self, step: int, replay, normalizer) -> None:
+        """Called after environment step ``step`` and its updates: each method whose ``interval`` divides ``step``
+        runs its ``at_interval`` (:class:`~ilcsan.rl.methods.Method`)."""
+        for method in self.methods():
+            if method.interval and step % method.interval == 0:
+                method.at_interval(step, replay, normalizer)
+
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor | None]:
         """One update of all K seeds; returns the summed losses as 0-dim tensors (``critic_loss``, ``actor_loss``,
         None on an update without an actor step)."""
@@ -156,13 +188,52 @@ class OffPolicyAlgorithm:
         return torch.stack([torch.randn(shape, generator=g, device=self.device) for g in self.noise_generators])
 
     def tensors(self) -> dict[str, list]:
-        """The tensors an update reads and writes: parameters (detached views, whose identity lasts the agent's
-        life) and Adam's state, looked up anew on each call (loading a checkpoint replaces the Adam state)."""
+        """The tensors an update reads and writes: parameters and the actor's persistent buffers (detached views,
+        whose identity lasts the agent's life) and Adam's state, looked up anew on each call (loading a checkpoint
+        replaces the Adam state)."""
         if self._critic_target_views is None:
             self._critic_target_views = [p.detach() for p in self.critic_target.parameters()]
         return {"actor": self.actor_adam.views, "critic": self.critic_adam.views,
-                "critic_target": self._critic_target_views,
+                "critic_target": self._critic_target_views, "actor_buffers": self.buffer_views(self.actor),
                 "actor_adam": self.actor_adam.tensors(), "critic_adam": self.critic_adam.tensors()}
+
+    def buffer_views(self, module: nn.Module) -> list[torch.Tensor]:
+        """Detached views of ``module``'s :func:`persistent_buffers`, made once: what an update reads and writes them
+        through (other tensor objects on the same storage, because a compiled program tells its inputs from the
+        module's own tensors, which it reads as constants, by identity; a checkpoint loads into them in place)."""
+        views = self._buffer_views.get(id(module))
+        if views is None:
+            views = self._buffer_views[id(module)] = [buffer.detach() for buffer in persistent_buffers(module).values()]
+        return views
+
+    def stateful(self, module: nn.Module, parameters: list[torch.Tensor], buffers: list[torch.Tensor]):
+        """``module`` as a function of its parameters and persistent buffers passed in (:func:`~ilcsan.compute.
+        programs.as_function`): how every pass of an actor inside an update reads its state."""
+        names = self._state_names.get(id(module))
+        if names is None:
+            names = [name for name, _ in module.named_parameters()] + list(persistent_buffers(module))
+            self._state_names[id(module)] = names
+        return as_function(module, [*parameters, *buffers], names)
+
+    def actor_gradients(self, grads: list[torch.Tensor]) -> list[torch.Tensor]:
+        """The actor loss's gradients with those of the :attr:`cancelled_parameters` exactly zero."""
+        cancelled = self.cancelled_parameters
+        return [torch.zeros_like(grad) if index in cancelled else grad for index, grad in enumerate(grads)]
+
+    def after_actor_step(self, buffers: list[torch.Tensor], record, samples: int) -> None:
+        """The normalisation method's writes after an actor step (in the update program), on the actor's buffers
+        as passed in, from what the loss pass recorded (its aux output)."""
+        self.normalization.after_actor_step(dict(zip(self.actor_buffer_names, buffers, strict=True)), record,
+                                            samples)
+
+    def follow_buffers(self, target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:
+        """b' ← τb + (1 − τ)b' for the :attr:`followed_buffers` of a Polyak-averaged target actor, in place."""
+        if not self.followed_buffers:
+            return
+        target_by_name = dict(zip(self.actor_buffer_names, target, strict=True))
+        online_by_name = dict(zip(self.actor_buffer_names, online, strict=True))
+        torch._foreach_lerp_([target_by_name[name] for name in self.followed_buffers],
+                             [online_by_name[name] for name in self.followed_buffers], tau)
 
     def run(self, program, batch: dict[str, torch.Tensor]):
         """``program(tensors, batch)`` in place, outside autograd (the update makes its own gradients)."""
@@ -185,6 +256,9 @@ class OffPolicyAlgorithm:
         state["critic_optimizer"] = self.critic_adam.seed_state(index, self.critics)
         state["updates"] = self.updates
         state["noise_generator"] = self.noise_generators[index].get_state()
+        normalization = self.normalization.seed_state(index)
+        if normalization is not None:
+            state["normalization"] = normalization
         return state
 
     def load_seed_states(self, states: Sequence[dict[str, Any]]) -> None:
@@ -196,6 +270,14 @@ class OffPolicyAlgorithm:
         for generator, state in zip(self.noise_generators, states, strict=True):
             generator.set_state(state["noise_generator"])
         self.updates = states[0]["updates"]
+        self.normalization.load_seed_states([state.get("normalization") for state in states])
+
+
+def persistent_buffers(module: nn.Module) -> dict[str, torch.Tensor]:
+    """``module``'s persistent buffers by name: its :func:`~ilcsan.runs.checkpoint.module_state` without the
+    parameters (state such as CaRe-BN's running statistics; none for today's other actors)."""
+    parameters = {name for name, _ in module.named_parameters()}
+    return {name: tensor for name, tensor in module_state(module).items() if name not in parameters}
 
 
 def first_readout(tensors: Mapping[str, torch.Tensor], deployed: nn.Module) -> dict[str, torch.Tensor]:

@@ -19,11 +19,15 @@ code). One update of K seeds, every environment step of an update chunk:
 
 α of the update is the one before its step. There is no target actor. Exploration samples from π; evaluation and
 deployment act with the mean, a = offset + scale · tanh(μ), so the deployed actor keeps only the mean's populations
-(:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.deployable_actor`).
+(:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.deployable_actor`), and its persistent buffers cut alike. The
+actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`, e.g. CaRe-BN) chooses the options of the actor
+loss's pass and writes the actor's persistent buffers after the actor's step; the target values' pass, before it,
+reads them as they were.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -62,6 +66,7 @@ class SAC(OffPolicyAlgorithm):
 
     @classmethod
     def check(cls, config: RunConfig) -> None:
+        super().check(config)
         td3, defaults = config.td3, TD3Config()
         for flag, name, default in (("--exploration", td3.exploration, defaults.exploration),
                                     ("--target-actor", td3.target_actor, defaults.target_actor)):
@@ -74,7 +79,6 @@ class SAC(OffPolicyAlgorithm):
         self.entropy = EntropyCoefficient(len(self.seeds), self.td3.initial_entropy_coefficient, self.device)
         self.entropy_adam = Adam(self.entropy, self.td3.entropy_lr)
         self.target_entropy = -float(self.action_dim)
-        self.actor_names = [name for name, _ in self.actor.named_parameters()]
         self.critic_names = [name for name, _ in self.critic.named_parameters()]
         self.readout_fn = CompiledPerShape(self.actor, self._readout) if self.compiled else self._readout
         constants = [self.scale, self.offset]
@@ -129,29 +133,34 @@ class SAC(OffPolicyAlgorithm):
         q_values = as_function(self.critic, critic, self.critic_names)(batch["obs"], batch["action"])
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
-    def actor_loss(self, actor: list, critic: list, alpha: torch.Tensor,
-                   batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """(Σ_k mean_b (α log π(ã | s) − min_j Q_j(s, ã)) [+ λ mean μ²], log π(ã | s) (K, B))."""
-        action, log_prob, mean = self.sample(as_function(self.actor, actor, self.actor_names), batch["obs"],
-                                             batch["noise"])
+    def actor_loss(self, actor: list, buffers: list, critic: list, alpha: torch.Tensor,
+                   batch: dict) -> tuple[torch.Tensor, tuple[torch.Tensor, tuple]]:
+        """(Σ_k mean_b (α log π(ã | s) − min_j Q_j(s, ã)) [+ λ mean μ²], (log π(ã | s) (K, B), what the actor's
+        pass recorded)), the pass with the normalisation method's options
+        (:meth:`~ilcsan.rl.methods.Normalization.loss_options`)."""
+        record: list = []
+        acting = functools.partial(self.stateful(self.actor, actor, buffers),
+                                   **self.normalization.loss_options(record))
+        action, log_prob, mean = self.sample(acting, batch["obs"], batch["noise"])
         q_value = as_function(self.critic, critic, self.critic_names)(batch["obs"], action).min(dim=1).values
         loss = (alpha[:, None] * log_prob - q_value).mean(dim=-1).sum()
         penalty = self.td3.preaction_penalty
         if penalty:
             loss = loss + penalty * (mean ** 2).mean(dim=(-2, -1)).sum()
-        return loss, log_prob
+        return loss, (log_prob, tuple(record))
 
     def _update_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
         alpha = tensors["entropy"][0].exp()
         with torch.no_grad():
-            target = self.target_values(batch, as_function(self.actor, tensors["actor"], self.actor_names),
+            target = self.target_values(batch, self.stateful(self.actor, tensors["actor"], tensors["actor_buffers"]),
                                         as_function(self.critic_target, tensors["critic_target"], self.critic_names),
                                         alpha)
         grads, critic_loss = value_and_grads(self.critic_loss, tensors["critic"], batch, target)
         adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
-        grads, (actor_loss, log_prob) = value_and_grads(self.actor_loss, tensors["actor"], tensors["critic"], alpha,
-                                                        batch, has_aux=True)
-        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=self.config.learning_rate)
+        grads, (actor_loss, (log_prob, record)) = value_and_grads(
+            self.actor_loss, tensors["actor"], tensors["actor_buffers"], tensors["critic"], alpha, batch, has_aux=True)
+        adam_(tensors["actor"], self.actor_gradients(grads), *tensors["actor_adam"], lr=self.config.learning_rate)
+        self.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         # ∂/∂log α of −mean_b log α (log π + H̄), per seed
         entropy_grads = [-(log_prob + self.target_entropy).mean(dim=-1)]
         adam_(tensors["entropy"], entropy_grads, *tensors["entropy_adam"], lr=self.td3.entropy_lr)

@@ -10,6 +10,10 @@ One update of K seeds, in TD3's order:
   penalty, whose own parameters step beside the actor's; plus the pre-action penalty λ·mean(O²) when λ > 0), then
   θ' ← τθ + (1 − τ)θ' for the target critic and, when the target actor follows the actor, for the target actor.
 
+The actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`, e.g. CaRe-BN) chooses the options of the actor
+loss's pass, writes the actor's persistent buffers after its step and names those the target actor follows with its
+weights.
+
 DDPG (:class:`DDPG`): one critic (min over one is itself), no smoothing (ã = π'(s')), the actor and targets at every
 update. How the actor explores and which actor is π' are training methods (:mod:`ilcsan.rl.methods`): TD3's
 Gaussian action noise and Polyak-averaged target by default; NoisySAN and Proxy Target are the others.
@@ -22,6 +26,7 @@ value_and_grads`, Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the age
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -32,7 +37,7 @@ from torch import nn
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
 from ...config import RunConfig, TD3Config
 from ..adam import adam_
-from ..methods import MethodContext, check_methods, exploration_method, target_actor_method
+from ..methods import Method, check_methods, exploration_method, target_actor_method
 from .base import OffPolicyAlgorithm
 
 
@@ -45,6 +50,7 @@ class TD3(OffPolicyAlgorithm):
 
     @classmethod
     def check(cls, config: RunConfig) -> None:
+        super().check(config)
         check_methods(config.td3, config.actor.network)
         exploration_method(config.td3.exploration).check(config.task, config.td3)
         target_actor_method(config.td3.target_actor).check(config.task, config.td3)
@@ -55,14 +61,10 @@ class TD3(OffPolicyAlgorithm):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        context = MethodContext(self.actor, self.config, self.td3, self.task, self.episode_steps, tuple(self.seeds),
-                                self.state_dim, self.action_dim, self.action_scale, self.action_offset, self.device,
-                                self.compiled, self.matmul)
+        context = self.method_context()
         self.target_method = target_actor_method(self.td3.target_actor)(context)
         self.exploration = exploration_method(self.td3.exploration)(context)
-        self.actor_names = [name for name, _ in self.actor.named_parameters()]
         self.critic_names = [name for name, _ in self.critic.named_parameters()]
-        self.target_actor_names = [name for name, _ in self.actor_target.named_parameters()]
         self._actor_target_views: list[torch.Tensor] | None = None
         constants = [self.scale, self.offset]
         for module in (self.actor, self.critic, self.actor_target, self.critic_target, self.exploration.module):
@@ -74,6 +76,9 @@ class TD3(OffPolicyAlgorithm):
     def actor_target(self) -> nn.Module:
         """π' in the target values: the target actor method's network (:mod:`ilcsan.rl.methods`)."""
         return self.target_method.module
+
+    def methods(self) -> list[Method]:
+        return [*super().methods(), self.exploration, self.target_method]
 
     # ------------------------------------------------------------------ the training loop's
     def explore(self, normalized_state: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
@@ -127,13 +132,17 @@ class TD3(OffPolicyAlgorithm):
         return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
     def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
-                   critic: Callable | None = None, method_parameters: list | None = None) -> torch.Tensor:
+                   critic: Callable | None = None, method_parameters: list | None = None,
+                   record: list | None = None) -> torch.Tensor:
         """Σ_k −mean_b Q_1(s, π(s)) plus the exploration method's terms, π(s) as the method evaluates it
-        (:meth:`~ilcsan.rl.methods.Exploration.actor_action`); ``method_parameters`` are the method's tensors.
+        (:meth:`~ilcsan.rl.methods.Exploration.actor_action`) with the normalisation method's options
+        (:meth:`~ilcsan.rl.methods.Normalization.loss_options`; ``record`` receives what that pass records);
+        ``method_parameters`` are the exploration method's tensors.
         With ``td3.preaction_penalty`` λ > 0 it adds Σ_k λ mean_{b,m} O², O the pre-tanh output of that same π(s)."""
         exploration = self.exploration
         parameters = method_parameters if method_parameters is not None else module_parameters(exploration.module)
-        actor = actor or self.actor
+        options = self.normalization.loss_options([] if record is None else record)
+        actor = functools.partial(actor or self.actor, **options)
         penalty = self.td3.preaction_penalty
         preactions: list[torch.Tensor] = []
         if penalty:
@@ -148,8 +157,8 @@ class TD3(OffPolicyAlgorithm):
     # ------------------------------------------------------------------------ the two variants
     def _critic_step(self, tensors: dict, batch: dict) -> torch.Tensor:
         with torch.no_grad():
-            target = self.target_values(batch, as_function(self.actor_target, tensors["actor_target"],
-                                                           self.target_actor_names),
+            target = self.target_values(batch, self.stateful(self.actor_target, tensors["actor_target"],
+                                                             tensors["actor_target_buffers"]),
                                         as_function(self.critic_target, tensors["critic_target"], self.critic_names))
         grads, loss = value_and_grads(self._critic_loss, tensors["critic"], batch, target)
         adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
@@ -158,32 +167,40 @@ class TD3(OffPolicyAlgorithm):
     def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
         return self.critic_loss(batch, target, as_function(self.critic, critic, self.critic_names))
 
-    def _actor_loss(self, actor: list, method: list, critic: list, batch: dict) -> torch.Tensor:
-        return self.actor_loss(batch, as_function(self.actor, actor, self.actor_names),
-                               as_function(self.critic, critic, self.critic_names), method)
+    def _actor_loss(self, actor: list, method: list, critic: list, buffers: list,
+                    batch: dict) -> tuple[torch.Tensor, tuple]:
+        """The actor loss of the actor's tensors and what its pass recorded (the aux output)."""
+        record: list = []
+        loss = self.actor_loss(batch, self.stateful(self.actor, actor, buffers),
+                               as_function(self.critic, critic, self.critic_names), method, record)
+        return loss, tuple(record)
 
     def _delayed_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
         critic_loss = self._critic_step(tensors, batch)
         lr = self.config.learning_rate
-        (grads, method_grads), actor_loss = value_and_grads(
-            self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], batch, wrt=(0, 1))
-        adam_(tensors["actor"], grads, *tensors["actor_adam"], lr=lr)
+        (grads, method_grads), (actor_loss, record) = value_and_grads(
+            self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], tensors["actor_buffers"],
+            batch, wrt=(0, 1), has_aux=True)
+        adam_(tensors["actor"], self.actor_gradients(grads), *tensors["actor_adam"], lr=lr)
         if tensors["exploration"]:  # the exploration method's own parameters (NoisySAN's σ_d), at the actor's rate
             adam_(tensors["exploration"], method_grads, *tensors["exploration_adam"], lr=lr)
+        self.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         tau = self.td3.tau
         if self.target_method.soft_update:
             torch._foreach_lerp_(tensors["actor_target"], tensors["actor"], tau)
+            self.follow_buffers(tensors["actor_target_buffers"], tensors["actor_buffers"], tau)
         torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], tau)
         return critic_loss, actor_loss
 
     def tensors(self) -> dict[str, list]:
-        """The shared tensors (:meth:`OffPolicyAlgorithm.tensors`), the target actor's and the exploration
-        method's parameters and Adam state."""
+        """The shared tensors (:meth:`OffPolicyAlgorithm.tensors`), the target actor's parameters and buffers, and
+        the exploration method's parameters and Adam state."""
         tensors = super().tensors()
         if self._actor_target_views is None:
             self._actor_target_views = [p.detach() for p in self.actor_target.parameters()]
         adam = self.exploration.adam
-        tensors.update(actor_target=self._actor_target_views, exploration=adam.views if adam is not None else [])
+        tensors.update(actor_target=self._actor_target_views, actor_target_buffers=self.buffer_views(self.actor_target),
+                       exploration=adam.views if adam is not None else [])
         if adam is not None:
             tensors["exploration_adam"] = adam.tensors()
         return tensors

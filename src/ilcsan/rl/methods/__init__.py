@@ -1,4 +1,5 @@
-"""Training methods as strategies: how the actor explores, and which actor gives TD3's target values.
+"""Training methods as strategies: how the actor explores, which actor gives TD3's target values, and what training
+does for the actor's normalisation.
 
 TD3 and DDPG (:mod:`ilcsan.rl.algorithms.td3`) have two places where the methods that followed ILC-SAN change them,
 and each is a strategy object with a small set of hooks, chosen by name in the run's TD3 settings:
@@ -8,29 +9,40 @@ and each is a strategy object with a small set of hooks, chosen by name in the r
 - **target actor** (``td3.target_actor``, :class:`TargetActor`): the actor π' in TD3's target values (the
   Polyak-averaged copy of the actor; Proxy Target's continuous proxy), and what it does before each update.
 
+A third, for every algorithm (SAC too), is chosen by the actor's ``normalization``:
+
+- **normalisation** (``actor.normalization``, :class:`Normalization`): which statistics the actor's loss normalises
+  with, how the statistics kept beside the weights move after each actor step and at intervals, and which of them a
+  Polyak-averaged target follows (CaRe-BN, :mod:`.care_bn`; ``none`` does nothing).
+
 Each method is one module with one class (its hooks: :mod:`.base`), registered here by name with the paper it comes from
-(:func:`register_exploration`, :func:`register_target_actor`); registering also makes the name a valid choice of the
-setting. Every hook has a do-nothing default in :class:`Method`, so a method writes only what it changes.
+(:func:`register_exploration`, :func:`register_target_actor`, :func:`register_normalization`); registering also makes
+the name a valid choice of the setting (a normalisation also needs the actor to implement it,
+:mod:`ilcsan.snn.normalization`). Every hook has a do-nothing default in :class:`Method`, so a method writes only what
+it changes.
 """
 
 from __future__ import annotations
 
-from ...config import EXPLORATION_PAPERS, TARGET_ACTOR_PAPERS, TD3Config
+from ...config import EXPLORATION_PAPERS, NORMALIZATION_PAPERS, TARGET_ACTOR_PAPERS, TD3Config
 from ...errors import UserError
-from .base import Exploration, Method, MethodContext, TargetActor
+from .base import Exploration, Method, MethodContext, Normalization, TargetActor
+from .care_bn import CareBN
 from .noisysan import NoisySAN
 from .proxy_target import ProxyTarget
 from .td3_own import GaussianActionNoise, PolyakTarget
 
-__all__ = ["EXPLORATION_METHODS", "TARGET_ACTOR_METHODS", "Exploration", "GaussianActionNoise", "Method",
-           "MethodContext", "NoisySAN", "PolyakTarget", "ProxyTarget", "TargetActor", "check_methods",
-           "exploration_method", "register_exploration", "register_target_actor", "relative_cost",
-           "target_actor_method"]
+__all__ = ["EXPLORATION_METHODS", "NORMALIZATION_METHODS", "TARGET_ACTOR_METHODS", "CareBN", "Exploration",
+           "GaussianActionNoise", "Method", "MethodContext", "NoisySAN", "Normalization", "PolyakTarget", "ProxyTarget",
+           "TargetActor", "check_methods", "exploration_method", "normalization_method", "register_exploration",
+           "register_normalization", "register_target_actor", "relative_cost", "target_actor_method"]
 
 EXPLORATION_METHODS: dict[str, type[Exploration]] = {}
 """The exploration methods by the name ``td3.exploration`` takes."""
 TARGET_ACTOR_METHODS: dict[str, type[TargetActor]] = {}
 """The target-actor methods by the name ``td3.target_actor`` takes."""
+NORMALIZATION_METHODS: dict[str, type[Normalization]] = {}
+"""What training does for each normalisation, by the name ``actor.normalization`` takes."""
 
 
 def _register(methods: dict, papers: dict[str, str], name: str, method: type, paper: str | None) -> None:
@@ -52,12 +64,22 @@ def register_target_actor(name: str, method: type[TargetActor], paper: str | Non
     _register(TARGET_ACTOR_METHODS, TARGET_ACTOR_PAPERS, name, method, paper)
 
 
+def register_normalization(name: str, method: type[Normalization], paper: str | None = None) -> None:
+    """Make training run ``method`` for the actor's ``normalization`` ``name``, as :func:`register_exploration` does
+    (the built-in normalisations' papers are declared in :data:`ilcsan.config.NORMALIZATION_PAPERS`)."""
+    _register(NORMALIZATION_METHODS, NORMALIZATION_PAPERS, name, method, paper)
+
+
 def exploration_method(name: str) -> type[Exploration]:
     return EXPLORATION_METHODS[name]
 
 
 def target_actor_method(name: str) -> type[TargetActor]:
     return TARGET_ACTOR_METHODS[name]
+
+
+def normalization_method(name: str) -> type[Normalization]:
+    return NORMALIZATION_METHODS[name]
 
 
 def check_methods(td3: TD3Config, network: str) -> None:
@@ -82,4 +104,5 @@ register_exploration("gaussian", GaussianActionNoise)
 register_exploration("noisy", NoisySAN)
 register_target_actor("polyak", PolyakTarget)
 register_target_actor("proxy", ProxyTarget)
-
+register_normalization("none", Normalization)
+register_normalization("care-bn", CareBN)

@@ -1,5 +1,5 @@
-"""The hooks of a training method (:class:`Exploration`, :class:`TargetActor`) with their do-nothing defaults, and
-what a method is built from (:class:`MethodContext`)."""
+"""The hooks of a training method (:class:`Exploration`, :class:`TargetActor`, :class:`Normalization`) with their
+do-nothing defaults, and what a method is built from (:class:`MethodContext`)."""
 
 from __future__ import annotations
 
@@ -43,12 +43,16 @@ class Method:
     anything is built). ``module``: the method's own trainable parameters or networks (None: none).
     ``seed_state(index)``: seed ``index``'s part of the method's state for a one-seed checkpoint (None: nothing to
     save), and ``load_seed_states(states)`` the inverse for all seeds.
+    ``interval``: environment steps between calls of ``at_interval(step, replay, normalizer)`` (0: never), made after
+    the step's updates, with the replay buffer and observation normaliser (CaRe-BN recalibrates its statistics). What
+    it draws, it draws with generators of its own, so that the run's random streams are untouched.
     """
 
     spiking_only = False
     spiking_reason = ""
     """Why the method needs a spiking actor, for the refusal's message."""
     module: nn.Module | None = None
+    interval = 0
 
     @classmethod
     def relative_cost(cls, td3: TD3Config) -> float:
@@ -62,6 +66,9 @@ class Method:
         return None
 
     def load_seed_states(self, states: Sequence[dict[str, Any] | None]) -> None:
+        return None
+
+    def at_interval(self, step: int, replay, normalizer) -> None:
         return None
 
 
@@ -116,3 +123,39 @@ class TargetActor(Method):
 
     def before_update(self, agent, batch: dict[str, torch.Tensor]) -> None:
         return None
+
+
+class Normalization(Method):
+    """What training does for the actor's normalisation (``actor.normalization``; every algorithm, TD3, DDPG and SAC,
+    runs it). The defaults, the choice ``none``, do nothing.
+
+    The hooks act inside the update program, on the actor's persistent buffers (its state beside the parameters, by
+    name: :func:`~ilcsan.rl.algorithms.base.persistent_buffers`), which every pass of the actor or the target actor
+    in an update reads from tensors passed in and which the hooks write in place, as Adam writes its state, so that
+    the eager and the compiled update agree:
+
+    ``loss_options(record)``: keyword arguments of the actor's forward pass in the actor's loss ({}: none); ``record``
+    is a list that pass may append to, handed to ``after_actor_step`` (the loss's aux output, detached).
+    ``after_actor_step(buffers, record, samples)``: after the actor's Adam step, write ``buffers`` (the online actor's,
+    name → tensor) in place from ``record``; ``samples`` is the number of states per seed in the minibatch.
+    ``followed_buffers(names)``: of the actor's buffer ``names``, those a Polyak-averaged target actor follows as it
+    follows the weights, b' ← τb + (1 − τ)b', at the same moments (TD3: each delayed step; DDPG: each update).
+    ``cancelled_parameters(names)``: of the actor's parameter ``names``, those the loss pass's normalisation cancels:
+    their gradient is zero but for rounding, which Adam, dividing by its own running scale of it, would turn into
+    steps of the learning rate's size; the update sets it to exactly zero, so they stay where they are.
+    """
+
+    def __init__(self, context: MethodContext):
+        return None
+
+    def loss_options(self, record: list) -> dict[str, Any]:
+        return {}
+
+    def after_actor_step(self, buffers: dict[str, torch.Tensor], record: Sequence, samples: int) -> None:
+        return None
+
+    def followed_buffers(self, names: Sequence[str]) -> list[str]:
+        return []
+
+    def cancelled_parameters(self, names: Sequence[str]) -> list[str]:
+        return []
