@@ -169,4 +169,4 @@ def test_ilcsan_actors_lists_the_training_methods_with_their_papers(capsys):
 
     assert main(["actors"]) == 0
     out = capsys.readouterr().out
-    assert "--target-actor proxy" in out and "arXiv 2505.24161" in out and "--target-actor spiking" in out
+    assert "--target-actor proxy" in out and "arXiv 2505.24161" in out and "--target-actor polyak" in out
