@@ -170,3 +170,4 @@ def test_ilcsan_actors_lists_the_training_methods_with_their_papers(capsys):
     assert main(["actors"]) == 0
     out = capsys.readouterr().out
     assert "--target-actor proxy" in out and "arXiv 2505.24161" in out and "--target-actor polyak" in out
+    assert "--algorithm sac" in out and "--algorithm ddpg" in out and "--normalization care-bn" in out

@@ -164,8 +164,7 @@ NORMALIZATION_PAPERS: dict[str, str] = {
     "none": "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)",
     "care-bn": "CaRe-BN (Xu et al., ICLR 2026): batch normalisation of each synaptic layer's current, pooled over "
                "the batch and the T steps; batch statistics in the actor's loss, running statistics (Kalman-style "
-               "gain, periodic recalibration) when acting (:mod:`ilcsan.snn.normalization`; training: "
-               ":mod:`ilcsan.rl.methods.care_bn`)",
+               "gain, periodic recalibration) when acting; folded into the weights at export",
 }
 """How a spiking actor normalises each synaptic layer's current before its neurons (``--normalization``), each with
 its paper. An actor saved before this setting existed has ``none``, the default."""

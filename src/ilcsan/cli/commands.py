@@ -8,7 +8,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..config import EXPLORATION_PAPERS, PRESET_SUMMARIES, TARGET_ACTOR_PAPERS, RunConfig, TD3Config, actor_config
+from ..config import (
+    ALGORITHM_PAPERS,
+    EXPLORATION_PAPERS,
+    NORMALIZATION_PAPERS,
+    PRESET_SUMMARIES,
+    TARGET_ACTOR_PAPERS,
+    RunConfig,
+    TD3Config,
+    actor_config,
+)
 from .options import build_run_config
 
 
@@ -145,9 +154,12 @@ def cmd_actors(args: argparse.Namespace) -> int:
                      "lr": c.learning_rate, "fully spiking": "yes" if c.fully_spiking else "no",
                      "what": summary})
     _print_table(rows, ["preset", "encoder", "neuron", "hidden", "intra", "decoder", "lr", "fully spiking", "what"])
-    print("\ntraining methods for spiking actors (TD3 options; DAN keeps TD3's own target and action noise):")
-    methods = [{"option": f"--target-actor {name}", "what": paper} for name, paper in TARGET_ACTOR_PAPERS.items()]
+    print("\nalgorithms (every actor) and training methods (beyond the defaults: spiking actors only; DAN keeps TD3's "
+          "own target and action noise):")
+    methods = [{"option": f"--algorithm {name}", "what": paper} for name, paper in ALGORITHM_PAPERS.items()]
+    methods += [{"option": f"--target-actor {name}", "what": paper} for name, paper in TARGET_ACTOR_PAPERS.items()]
     methods += [{"option": f"--exploration {name}", "what": paper} for name, paper in EXPLORATION_PAPERS.items()]
+    methods += [{"option": f"--normalization {name}", "what": paper} for name, paper in NORMALIZATION_PAPERS.items()]
     _print_table(methods, ["option", "what"])
     return 0
 
