@@ -5,7 +5,8 @@ What it does, in this order (about 10-15 minutes on the 2-core development machi
 1. **Training runs killed with SIGKILL.** A tiny Pendulum run (`ilcsan train ... --hidden-width 16`) is
    run once uninterrupted, then again and again killed: at random moments, in the middle of each kind of
    atomic write (a hook, ``ILCSAN_FAULT_DELAY_WRITE``, pauses every write halfway so the kill finds a
-   half-written temporary file: replay segment, metrics.csv, result.json, policy.pt, checkpoint.pt),
+   half-written temporary file: config.json, replay segment, metrics.csv, result.json, policy.pt, checkpoint.pt,
+   provenance.json),
    several times in a row, and for a two-seed run between the seeds' checkpoints. After each kill every
    checkpoint/policy file on disk must load, none may be older than the last evaluation the process
    reported; then `--resume` runs to the end and each seed's `eval_return_mean` column must equal the
@@ -59,7 +60,8 @@ from fault_harness import (  # noqa: E402
 )
 
 WRITES = [".config.json.*.tmp", "replay/.*.tmp", ".metrics.csv.*.tmp", ".policy.pt.*.tmp", ".checkpoint.pt.*.tmp",
-          ".result.json.*.tmp"]
+          ".result.json.*.tmp", ".provenance.json.*.tmp"]
+"""Every file a run writes atomically; config.json and provenance.json are written once per start, the others often."""
 
 
 def log(message: str) -> None:
@@ -89,7 +91,7 @@ def training_trials(base: Path, rng: random.Random, scale: float) -> dict:
     for index in range(max(1, round(10 * scale))):
         plans.append((f"random moment {index + 1}", single, "single", [At(moment("single"))]))
     for pattern in WRITES:
-        occurrence = 1 if pattern.startswith(".config") else rng.randint(1, 5)
+        occurrence = 1 if pattern.startswith((".config", ".provenance")) else rng.randint(1, 5)
         plans.append((f"mid-write {pattern}", single, "single", [During(pattern, occurrence)]))
     for index in range(max(1, round(3 * scale))):
         # start-up takes ~3 s: early moments leave every resumed process some training to be killed in

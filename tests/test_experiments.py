@@ -180,7 +180,10 @@ def test_small_helpers():
     assert format_duration(200_000) == "2d 07h"
 
 
-def test_estimate_hours_runs_in_waves_of_cores():
+def test_estimate_hours_runs_in_waves_of_cores(monkeypatch):
+    from ilcsan.experiments import estimate
+
+    monkeypatch.setattr(estimate, "TASK_STEP_COST", {})  # every task costs Hopper's
     # intra: 4 tasks x 8 rows x 10 seeds = 320 runs of 1e6 steps; at 100 steps/s a run takes 1e4 s
     assert estimate_hours("intra", 100.0, 2) == pytest.approx(160 * 1e4 / 3600)
     assert estimate_hours("intra", 100.0, 320) == pytest.approx(1e4 / 3600)
@@ -188,6 +191,24 @@ def test_estimate_hours_runs_in_waves_of_cores():
     # perf: 480 spiking runs (cost 1) and 80 DAN runs (cost 0.6) of 5000 s on 64 cores, longest first: 32 cores take
     # 8 spiking runs, 32 take 7; the DAN runs go to the least busy: 7.6 (32), then 8.2 (32), then 8.6 (16 cores)
     assert estimate_hours(TABLES["perf"], 200.0, 64) == pytest.approx(8.6 * 5000 / 3600)
+
+
+def test_a_run_costs_its_task_factor_times_its_row_factor(monkeypatch):
+    """perf on 8 cores with Humanoid 6 times and Ant 2 times Hopper's step, every other task 1: per task 70 runs (7
+    rows × 10 seeds), 60 spiking (cost 1 × task) and 10 DAN (0.6 × task). Longest first: the 60 + 10 Humanoid runs (6
+    and 3.6) load the 8 cores to 6·60/8 + 3.6·10/8 = 49.5 in total; the busiest core's load is what the greedy deal
+    gives, checked here against the deal done by hand in a few lines."""
+    from ilcsan.experiments import estimate
+
+    monkeypatch.setattr(estimate, "TASK_STEP_COST", {"Humanoid": 6.0, "Ant": 2.0})
+    assert estimate.task_step_cost("Humanoid") == 6.0 and estimate.task_step_cost("MyTask") == 1.0
+    costs = sorted([6.0] * 60 + [3.6] * 10 + [2.0] * 60 + [1.2] * 10 + [1.0] * 360 + [0.6] * 60, reverse=True)
+    loads = [0.0] * 8
+    for cost in costs:
+        loads[loads.index(min(loads))] += cost
+    assert estimate_hours(TABLES["perf"], 100.0, 8) == pytest.approx(max(loads) * 1e4 / 3600)
+    assert max(loads) > sum(costs) / 8 - 1e-9 and max(loads) < sum(costs) / 8 + 6.0
+    assert "Humanoid 6, " in list_tables([TABLES["perf"]], 100.0, 8)
 
 
 def test_each_row_of_a_grid_costs_what_its_method_measured():

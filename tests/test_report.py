@@ -487,7 +487,10 @@ def test_curves_are_aligned_on_common_steps(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 1, [30, 40], result=False)
     steps, mean, std = curve(collect_runs(tmp_path), window=1)
     assert steps.tolist() == [10_000, 20_000]
-    assert mean.tolist() == [20, 30] and std.tolist() == [10, 10]
+    assert mean.tolist() == [20, 30]
+    assert std == pytest.approx([200**0.5, 200**0.5]), "the sample std (ddof 1) of 10 and 30, as every table's"
+    _, _, alone = curve(collect_runs(tmp_path)[:1])
+    assert alone.tolist() == [0.0] * len(alone), "one seed has no spread"
 
 
 def _is_png(path: Path) -> bool:

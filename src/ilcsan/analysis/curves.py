@@ -41,7 +41,8 @@ def smoothing_window(points: int) -> int:
 
 
 def curve(runs: Sequence[RunRecord], window: int | None = None) -> tuple[np.ndarray, ...] | None:
-    """(steps, mean, std) over seeds at the steps every run evaluated, each run smoothed first.
+    """(steps, mean, std) over seeds at the steps every run evaluated, each run smoothed first; the std is the sample
+    std (ddof = 1) as in every table of ours, 0 for one seed.
 
     Curves are aligned on the common steps (the intersection of the runs' evaluation steps), so a
     seed that is still running shortens the curve. None when there are no common steps. ``window``
@@ -56,7 +57,7 @@ def curve(runs: Sequence[RunRecord], window: int | None = None) -> tuple[np.ndar
     values = np.array([[dict(zip(run.steps, run.returns, strict=True))[step] for step in common]
                        for run in with_curves])
     smoothed = smooth(values, smoothing_window(len(common)) if window is None else window)
-    return np.array(common, dtype=float), smoothed.mean(axis=0), smoothed.std(axis=0, ddof=0)
+    return np.array(common, dtype=float), smoothed.mean(axis=0), smoothed.std(axis=0, ddof=min(1, len(values) - 1))
 
 
 def plot_curves(runs: Sequence[RunRecord], path: str | Path, table: str | TableSpec | None = None):

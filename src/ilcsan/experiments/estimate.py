@@ -24,6 +24,12 @@ DAN_STEP_COST = 0.6
 """Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper; ``benchmarks/speed.py``
 measures both on a machine)."""
 
+TASK_STEP_COST: dict[str, float] = {}
+"""Time per environment step of one ILC-SAN seed on a task relative to Hopper's, at the paper's protocol (float32, one
+torch thread per core, both cores busy, evaluations included with episodes at their full length), as
+``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``): ratios, which hold across machines far better than
+steps/s do. A task not listed (a user's own) is assumed to cost what Hopper does."""
+
 EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
 
@@ -64,19 +70,24 @@ def row_step_cost(row: RowSpec) -> float:
     return relative_cost(TD3Config(**row.td3))
 
 
+def task_step_cost(task: str) -> float:
+    """A task's time per step relative to Hopper's (:data:`TASK_STEP_COST`; 1 for a task not measured)."""
+    return TASK_STEP_COST.get(task, 1.0)
+
+
 def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) -> float:
     """Wall-clock hours to run a whole table on ``cores`` cores, one run per core at a time.
 
     A run takes ``steps × cost / steps_per_second`` seconds (``steps_per_second`` the speed of one ILC-SAN run on
-    Hopper on one core, evaluations included; ``cost`` its row's :func:`row_step_cost`); the runs are dealt longest
-    first to the least busy core, and the estimate is the busiest core's total (with equal runs: ceil(runs / cores)
-    waves). Training the seeds of a cell together (as ``reproduce`` does) is faster in aggregate, so this is an
-    upper estimate for that part, while the tasks larger than Hopper (Ant, Humanoid) are slower than that run.
+    Hopper on one core, evaluations included; ``cost`` its task's :func:`task_step_cost` times its row's
+    :func:`row_step_cost`); the runs are dealt longest first to the least busy core, and the estimate is the busiest
+    core's total (with equal runs: ceil(runs / cores) waves). Training the seeds of a cell together (as ``reproduce``
+    does) is faster in aggregate, so this is an upper estimate for that part.
     """
     spec = TABLES[table] if isinstance(table, str) else table
     if steps_per_second <= 0 or cores < 1:
         raise ValueError("steps_per_second must be positive and cores at least 1")
-    costs = sorted((row_step_cost(row) for _, row, _ in spec.runs()), reverse=True)
+    costs = sorted((task_step_cost(task) * row_step_cost(row) for task, row, _ in spec.runs()), reverse=True)
     loads = [0.0] * min(cores, max(1, len(costs)))
     for cost in costs:
         index = loads.index(min(loads))
@@ -97,6 +108,7 @@ def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:
     label_width = max(len(row.label) for row in spec.rows)
     lines = [f"{spec.name}: {spec.caption}",
              f"  tasks ({len(spec.tasks)}): {', '.join(spec.tasks)}",
+             f"  time per step (× Hopper's): {', '.join(f'{task} {task_step_cost(task):.2g}' for task in spec.tasks)}",
              f"  rows ({len(spec.runnable_rows)} to run):"]
     lines += [f"    {row.slug:<{width}}  {row.label:<{label_width}}  {_row_switches(row)}" for row in spec.rows]
     lines.append(f"  protocol: {spec.seeds} seeds × {spec.steps:,} steps, {spec.eval_episodes} deterministic "
@@ -123,7 +135,8 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
     footer = (f"Estimates assume {speed:g} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
               f"evaluations included; the setting {STEPS_PER_SECOND_ENV}, default {DEFAULT_STEPS_PER_SECOND:g}: set it "
               "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
-              f"a run's hours = steps × its row's cost / (steps/s) / 3600 (relative to ILC-SAN's step: DAN "
+              "a run's hours = steps × its task's cost × its row's cost / (steps/s) / 3600 (tasks relative to Hopper's "
+              "step, float32, as benchmarks/task_cost.py measured them; rows relative to ILC-SAN's step: DAN "
               f"{DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}; "
               "the methods' costs multiply), "
               "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "

@@ -1,0 +1,146 @@
+"""What one seed of the paper's protocol costs on each task: steps/s per core, float32 and bf16, measured side by side.
+
+For each task and matmul precision, one ILC-SAN run (the paper's preset, one torch thread, compiled, the run's own
+matmul choice as ``ilcsan train`` makes it) measures, after a warm-up in which the update program compiles:
+
+- ``train``: seconds per environment step with TD3's updates (one update per step, in chunks of 50), no evaluation;
+- ``evaluation``: seconds of one evaluation of the protocol (10 deterministic episodes in lockstep, every 10 000
+  steps), taken as episodes at their full length (1 000 steps; BipedalWalker 1 600), as a trained actor plays them:
+  the time limit × (one batched action of the 10 episodes + 10 environment steps), plus the actor diagnostics on
+  replayed states that every evaluation computes.
+
+``protocol steps/s`` = 10 000 / (10 000 × train + evaluation): the speed of a run after its random-action phase,
+evaluations included; ``h per 1M`` follows from it (the random phase's 10 000 steps are cheaper, episodes of an
+untrained actor shorter, so a real run takes somewhat less). ``× Hopper`` is the task's time per step over Hopper's
+in the same precision: the per-task factors :data:`ilcsan.experiments.estimate.TASK_STEP_COST` holds (float32).
+
+With ``--jobs 2`` the measurements run two at a time, one process per core, as the paper's runs do (one seed per
+core, both cores busy). Run it on an otherwise idle machine:
+
+    .venv/bin/python benchmarks/task_cost.py --jobs 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import torch
+from speed import cpu_model
+
+from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.paper.layouts import TABLES
+from ilcsan.rl.evaluation import replay_diagnostics
+from ilcsan.rl.training import Trainer
+
+PRECISIONS = ("float32", "bf16")
+EVAL_EVERY = 10_000
+EVAL_EPISODES = 10
+
+
+def measure(task: str, matmul: str, steps: int, warmup: int) -> dict[str, float | str]:
+    """One task and precision: seconds per training step, per evaluation, and the matmul choice made."""
+    torch.set_num_threads(1)
+    td3 = TD3Config(start_steps=0, update_after=100)
+    config = RunConfig(task=task, seeds=(0,), steps=warmup + steps + 1, eval_every=EVAL_EVERY,
+                       eval_episodes=EVAL_EPISODES, actor=actor_config("ilc-san"), td3=td3, threads=1, compile="on",
+                       matmul=matmul)
+    with tempfile.TemporaryDirectory() as folder:
+        trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
+        try:
+            for _ in range(warmup):
+                trainer.train_step()
+            start = time.perf_counter()
+            for _ in range(steps):
+                trainer.train_step()
+            train = (time.perf_counter() - start) / steps
+            evaluation, limit = evaluation_seconds(trainer)
+            chosen = trainer.matmul["path"]
+            if chosen == "bf16":
+                chosen = f"bf16 on {len(trainer.matmul['bf16_products'])} of {trainer.matmul['products']} shapes"
+        finally:
+            trainer.close()
+    return {"task": task, "matmul": matmul, "train": train, "evaluation": evaluation, "limit": limit,
+            "path": str(chosen)}
+
+
+def evaluation_seconds(trainer: Trainer, lockstep_steps: int = 100, warmup: int = 20) -> tuple[float, int]:
+    """Seconds of one evaluation with every episode at the task's time limit, and that limit: the time of
+    ``lockstep_steps`` lockstep steps (one batched action, then each episode's environment step; an ended episode
+    restarts so that every step steps all of them), scaled to the limit, plus one pass of the actor diagnostics;
+    each after ``warmup`` untimed calls (the acting pass compiles for the evaluation's shape on its first)."""
+    envs = trainer.eval_envs[0]
+    limit = envs[0].spec.max_episode_steps
+    observations = np.stack([env.reset(seed=index)[0] for index, env in enumerate(envs)])[None]
+
+    def lockstep() -> None:
+        actions = trainer._act(observations)
+        for index, env in enumerate(envs):
+            observation, _, terminated, truncated, _ = env.step(actions[0, index])
+            observations[0, index] = env.reset()[0] if terminated or truncated else observation
+
+    def diagnostics() -> None:
+        replay_diagnostics(trainer.agent, trainer.replay, trainer.normalizer, trainer.config.seeds, trainer.step)
+
+    per_step = seconds_per_call(lockstep, lockstep_steps, warmup)
+    return limit * per_step + seconds_per_call(diagnostics, 3, 1), limit
+
+
+def seconds_per_call(function, calls: int, warmup: int) -> float:
+    """Mean seconds of ``calls`` calls of ``function`` after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        function()
+    start = time.perf_counter()
+    for _ in range(calls):
+        function()
+    return (time.perf_counter() - start) / calls
+
+
+def protocol_speed(row: dict) -> float:
+    """Steps/s of the protocol after the random phase, evaluations included."""
+    return EVAL_EVERY / (EVAL_EVERY * row["train"] + row["evaluation"])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", default=",".join(TABLES["perf"].tasks))
+    parser.add_argument("--precisions", default=",".join(PRECISIONS))
+    parser.add_argument("--steps", type=int, default=500, help="measured training steps per configuration")
+    parser.add_argument("--warmup", type=int, default=250, help="warm-up steps (the update compiles here)")
+    parser.add_argument("--jobs", type=int, default=1, help="measurements at a time, one process per core")
+    parser.add_argument("--out", help="also append the table to this Markdown file")
+    args = parser.parse_args()
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    tasks, precisions = args.tasks.split(","), args.precisions.split(",")
+    jobs = [(task, matmul) for task in tasks for matmul in precisions]
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futures = [pool.submit(measure, task, matmul, args.steps, args.warmup) for task, matmul in jobs]
+        rows = {(row["task"], row["matmul"]): row for row in (future.result() for future in futures)}
+    lines = [f"CPU: {cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; {started}; one thread per "
+             f"run, {args.jobs} run(s) at a time; {args.steps} measured steps after {args.warmup}.", "",
+             "| task | matmul (path) | train steps/s | evaluation s | protocol steps/s | h per 1M | × Hopper | "
+             "bf16 × float32 |", "|---|---|---|---|---|---|---|---|"]
+    for task, matmul in jobs:
+        row = rows[(task, matmul)]
+        speed = protocol_speed(row)
+        hopper = rows.get(("Hopper", matmul))
+        relative = f"{protocol_speed(hopper) / speed:.2f}" if hopper else "–"
+        float32 = rows.get((task, "float32"))
+        gain = f"{speed / protocol_speed(float32):.2f}" if matmul == "bf16" and float32 else "–"
+        lines.append(f"| {task} | {matmul} ({row['path']}) | {1 / row['train']:.0f} | {row['evaluation']:.1f} "
+                     f"(limit {row['limit']}) | {speed:.0f} | {1e6 / speed / 3600:.2f} | {relative} | {gain} |")
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        with open(args.out, "a", encoding="utf-8") as stream:
+            stream.write("\n" + text + "\n")
+
+
+if __name__ == "__main__":
+    main()
