@@ -24,11 +24,16 @@ DAN_STEP_COST = 0.6
 """Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper; ``benchmarks/speed.py``
 measures both on a machine)."""
 
-TASK_STEP_COST: dict[str, float] = {}
+TASK_STEP_COST: dict[str, float] = {
+    "Hopper": 1.0, "HalfCheetah": 1.1, "Walker2d": 1.2, "InvertedDoublePendulum": 1.1, "BipedalWalker": 1.4,
+    "Ant": 2.5, "Humanoid": 6.3, "HumanoidStandup": 7.2,
+}
 """Time per environment step of one ILC-SAN seed on a task relative to Hopper's, at the paper's protocol (float32, one
 torch thread per core, both cores busy, evaluations included with episodes at their full length), as
-``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``): ratios, which hold across machines far better than
-steps/s do. A task not listed (a user's own) is assumed to cost what Hopper does."""
+``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``: the median of three runs, rounded; the runs spread by
+up to ±0.3, HumanoidStandup ±1.2). Ratios hold across machines far better than steps/s do; the larger input
+populations of Ant (1 110 neurons) and Humanoid (3 760) make their products the dearest. A task not listed (a user's
+own) is assumed to cost what Hopper does."""
 
 EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
