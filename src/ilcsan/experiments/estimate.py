@@ -6,12 +6,10 @@ import math
 import os
 from collections.abc import Iterable
 
-from ..config import TD3Config
+from .. import methods
+from ..config import td3_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
-from ..rl.methods import relative_cost
-from ..rl.methods.noisysan import NOISY_STEP_COST
-from ..rl.methods.proxy_target import PROXY_COST_PER_ITERATION
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 DEFAULT_STEPS_PER_SECOND = 130.0
@@ -57,11 +55,11 @@ def steps_per_second_default() -> float:
 
 
 def row_step_cost(row: RowSpec) -> float:
-    """A row's time per environment step relative to plain ILC-SAN's: DAN's is cheaper; a training method's is its
-    :meth:`~ilcsan.rl.methods.Method.relative_cost` (Proxy Target and NoisySAN are dearer)."""
+    """A row's time per environment step relative to plain ILC-SAN's: DAN's is cheaper; the row's training methods
+    multiply it by their declared :meth:`~ilcsan.methods.Declared.relative_cost`."""
     if row.preset == "dan":
         return DAN_STEP_COST
-    return relative_cost(TD3Config(**row.td3))
+    return methods.relative_cost(td3_config_class()(**row.td3))
 
 
 def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) -> float:
@@ -114,6 +112,11 @@ def _format_hours(hours: float) -> str:
     return f"≈ {hours:,.0f} h ({hours / 24:,.1f} days)" if hours >= 48 else f"≈ {hours:,.1f} h"
 
 
+def _method_costs() -> str:
+    """Each registered method that costs more than a plain step, with its declared cost: 'Title note, ...'."""
+    return ", ".join(f"{method.title} {method.cost_note}" for method in methods.every() if method.cost_note)
+
+
 def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: float | None = None,
                 cores: int | None = None) -> str:
     """The text of ``ilcsan reproduce --list``."""
@@ -124,8 +127,7 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
               f"evaluations included; the setting {STEPS_PER_SECOND_ENV}, default {DEFAULT_STEPS_PER_SECOND:g}: set it "
               "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
               f"a run's hours = steps × its row's cost / (steps/s) / 3600 (relative to ILC-SAN's step: DAN "
-              f"{DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}; "
-              "the methods' costs multiply), "
+              f"{DAN_STEP_COST:g}, {_method_costs()}; the methods' costs multiply), "
               "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "
               "cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])
