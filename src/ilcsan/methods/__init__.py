@@ -33,6 +33,10 @@ def register(method: type[Declared]) -> type[Declared]:
         raise ValueError(f"{method.__name__}: kind {method.kind!r} is not one of {', '.join(KINDS)}")
     if not getattr(method, "paper", ""):
         raise ValueError(f"method {method.name!r} needs the paper it comes from")
+    if method.kind == "loss_term" and method.weight not in {name for name, _, _ in method.setting_fields()}:
+        raise ValueError(f"loss term {method.name!r} needs its weight among its settings")
+    if method.kind != "loss_term" and not method.option_help:
+        raise ValueError(f"method {method.name!r} needs its phrase in the help of {method.flag()}")
     if method.name in _REGISTRY[method.kind]:
         raise ValueError(f"a {method.kind} named {method.name!r} is registered already")
     taken = {name for other in every() for name, _, _ in other.setting_fields()}

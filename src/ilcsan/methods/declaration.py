@@ -65,7 +65,7 @@ class Declared:
     name: ClassVar[str]
     title: ClassVar[str]
     paper: ClassVar[str]
-    option_help: ClassVar[str]
+    option_help: ClassVar[str] = ""
     training: ClassVar[str | type]
     renamed: ClassVar[tuple[str, ...]] = ()
     Settings: ClassVar[type] = NoSettings

@@ -16,7 +16,6 @@ class PreactionPenalty(Declared):
     paper = ("a penalty λ·mean(O²) on the actor's pre-tanh output O (SAC: the mean's) in the actor's loss, which "
              "pulls a saturated actor back into tanh's range (this package's remedy for the saturated start, "
              "docs/fidelity-hopper)")
-    option_help = ""
     weight = "preaction_penalty"
     training = "ilcsan.rl.methods.preaction_penalty:PreactionPenalty"
 
