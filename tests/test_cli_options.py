@@ -9,11 +9,17 @@ import sys
 import pytest
 
 from ilcsan.cli import build_parser, main
-from ilcsan.cli.options import RUN_SETTINGS, TD3_SETTINGS, actor_switches, build_run_config
+from ilcsan.cli.options import RUN_SETTINGS, actor_switches, build_run_config, td3_settings
 from ilcsan.config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of
 from ilcsan.errors import UserError
+from ilcsan.settings import help_text
 
 PARSER = build_parser()
+
+
+def _help(field) -> str:
+    """A field's help as its metadata says it (some are made when asked: the choices among registered methods)."""
+    return help_text(field)
 
 
 def _subparser(name):
@@ -33,18 +39,18 @@ def test_every_actor_field_has_help_and_a_switch_in_train_help(field, train_help
     actions = {flag: action for action in _subparser("train")._actions for flag in action.option_strings}
     helps = {"--" + part.flag: part.help for part in field.metadata["switches"]} or {flag_of(field): None}
     shown = " ".join(train_help.split())
-    for flag, help_text in helps.items():
+    for flag, switch_help in helps.items():
         assert flag in actions, f"ActorConfig.{field.name} has no switch {flag}"
-        assert actions[flag].help.startswith(help_text or field.metadata["help"])
+        assert actions[flag].help.startswith(switch_help or _help(field))
         assert actions[flag].help.replace("%%", "%") in shown
 
 
-@pytest.mark.parametrize("config_class, names", [(RunConfig, RUN_SETTINGS + ("steps",)), (TD3Config, TD3_SETTINGS)])
+@pytest.mark.parametrize("config_class, names", [(RunConfig, RUN_SETTINGS + ("steps",)), (TD3Config, td3_settings())])
 def test_run_and_td3_options_show_the_configs_help_and_default(config_class, names, train_help):
     text = train_help
     for field in dataclasses.fields(config_class):
         if field.name in names:
-            assert " ".join(field.metadata["help"].split()) in text
+            assert " ".join(_help(field).split()) in text
             if field.default is not None:
                 assert f"(default: {field.default})" in text
 
@@ -79,7 +85,7 @@ def test_hidden_switches_set_the_widths():
 
 
 @pytest.mark.parametrize("config_class, names, target", [(RunConfig, RUN_SETTINGS, lambda config: config),
-                                                         (TD3Config, TD3_SETTINGS, lambda config: config.td3)])
+                                                         (TD3Config, td3_settings(), lambda config: config.td3)])
 def test_each_run_and_td3_option_sets_its_field(config_class, names, target):
     for field in dataclasses.fields(config_class):
         if field.name in names and field.name != "device":

@@ -415,11 +415,10 @@ def test_estimates_assume_the_setting_not_the_cpu(monkeypatch):
     footer = list_tables([TABLES["layer"]], cores=2).split("\n\n")[-1]
     assert f"assume {estimate.DEFAULT_STEPS_PER_SECOND:g} steps/s" in footer
     assert f"ILCSAN_STEPS_PER_SECOND, default {estimate.DEFAULT_STEPS_PER_SECOND:g}" in footer
-    from ilcsan.rl.methods.noisysan import NOISY_STEP_COST
-    from ilcsan.rl.methods.proxy_target import PROXY_COST_PER_ITERATION
+    from ilcsan.methods import noisysan, proxy_target
 
-    assert (f"DAN {estimate.DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, "
-            f"NoisySAN {NOISY_STEP_COST:g}") in footer
+    assert (f"DAN {estimate.DAN_STEP_COST:g}, Proxy Target 1 + {proxy_target.COST_PER_ITERATION:g}·K, "
+            f"NoisySAN {noisysan.STEP_COST:g}") in footer
     monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "fast")
     with pytest.raises(UserError, match="ILCSAN_STEPS_PER_SECOND='fast' must be a positive number"):
         estimate.steps_per_second_default()

@@ -5,6 +5,7 @@ networks as an explicit object (no process-wide setting)."""
 from __future__ import annotations
 
 import json
+from itertools import pairwise
 
 import pytest
 import torch
@@ -293,3 +294,28 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
     finally:
         trainer.close()
     assert seen and seen <= set(run_products(config, 3, 1)), sorted(seen - set(run_products(config, 3, 1)))
+
+
+def test_a_proxy_runs_products_are_what_its_declaration_says(monkeypatch):
+    """run_products names no method: a proxy run's products are a plain run's changed by Proxy Target's declared
+    hook (the proxy's fit and forward, the actor's forward over its regression targets, no target actor's pass)."""
+    from ilcsan.methods.proxy_target import PROXY_HIDDEN, ProxyTarget
+
+    def config(target_actor: str) -> RunConfig:
+        return RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
+                         actor=actor_config("ilc-san", hidden=(8,)),
+                         td3=TD3Config(batch_size=16, critic_hidden=(12,), target_actor=target_actor,
+                                       proxy_iterations=3))
+
+    plain, proxy = run_products(config("polyak"), 3, 1, 200), run_products(config("proxy"), 3, 1, 200)
+    forward = layer_products(2, 5 * 16, 30, 8)[0]
+    assert plain[forward] == 1.5 and proxy[forward] == 0.5  # the target actor's pass is gone, the actor update's stays
+    assert proxy[layer_products(2, 5 * 16 * 3, 30, 8)[0]] == 1.0  # the actor's forward over the K·B targets
+    assert {product for product in proxy if product not in plain} == {
+        product for d_in, d_out in pairwise([3, *PROXY_HIDDEN, 1]) for product in layer_products(2, 16, d_in, d_out)
+    } | {layer_products(2, 5 * 16 * 3, 30, 8)[0], layer_products(2, 5 * 16 * 3, 8, 10)[0]}
+    for d_in, d_out in ((3, PROXY_HIDDEN[0]), (PROXY_HIDDEN[-1], 1)):  # (a square layer's two products share a shape)
+        fit = layer_products(2, 16, d_in, d_out)
+        assert [proxy[product] for product in fit] == [4.0, 3.0, 3.0]  # K regression steps, and π' once more
+    monkeypatch.setattr(ProxyTarget, "products", classmethod(lambda cls, *args: None))
+    assert run_products(config("proxy"), 3, 1, 200) == plain  # without its hook, nothing of the proxy is counted

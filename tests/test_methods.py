@@ -1,12 +1,15 @@
-"""Training methods as strategies (:mod:`ilcsan.rl.methods`): a new method is one class and one registration.
+"""Training methods as declarations and strategies: a new method is one declaration, its hooks and one registration.
 
-The toy method below exists only in this test. It explores with uniform noise on the action and learns one number per
-seed that its own loss term pulls toward 1: registered, it trains (eager and compiled alike), checkpoints and resumes
-exactly, without a line of the package knowing about it.
+The toy method below exists only in this test. It explores with uniform noise on the action, as wide as its one
+setting says, and learns one number per seed that its own loss term pulls toward 1. Registered, it is a flag of
+``ilcsan train``, a key of a grid row, part of a run's identity in reports and a cost in ``reproduce --list``, and it
+trains (eager and compiled alike), checkpoints and resumes exactly, without a line of the package knowing about it.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -14,12 +17,15 @@ import pytest
 import torch
 from torch import nn
 
-from ilcsan.config import EXPLORATION_PAPERS, TD3Config, actor_config
+from ilcsan import methods
+from ilcsan.config import actor_config, check_settings, td3_config_class
 from ilcsan.errors import UserError
+from ilcsan.methods import Declared
 from ilcsan.rl.adam import Adam
 from ilcsan.rl.algorithms import TD3
-from ilcsan.rl.methods import EXPLORATION_METHODS, Exploration, MethodContext, register_exploration, relative_cost
+from ilcsan.rl.methods import Exploration, MethodContext
 from ilcsan.rl.training import train
+from ilcsan.settings import setting
 
 
 class Level(nn.Module):
@@ -29,22 +35,20 @@ class Level(nn.Module):
 
 
 class UniformNoiseWithALevel(Exploration):
-    """Explores with π(s) + 0.3·scale·U(−1, 1); its loss term (level − 1)² trains one number per seed."""
+    """Explores with π(s) + width·scale·U(−1, 1); its loss term (level − 1)² trains one number per seed."""
 
     def __init__(self, context: MethodContext):
         self.module = Level(len(context.seeds))
         self.adam = Adam(self.module, context.actor_config.learning_rate)
         self.scale, self.offset = context.action_scale, context.action_offset
+        self.width = context.td3.toy_width
         self.explored = 0
-
-    @classmethod
-    def relative_cost(cls, td3: TD3Config) -> float:
-        return 1.5
 
     def explore(self, agent, states: np.ndarray, rngs) -> np.ndarray:
         self.explored += 1
         noise = np.stack([rng.uniform(-1.0, 1.0, len(self.scale)) for rng in rngs])
-        return np.clip(agent.act(states) + 0.3 * noise * self.scale, self.offset - self.scale, self.offset + self.scale)
+        return np.clip(agent.act(states) + self.width * noise * self.scale, self.offset - self.scale,
+                       self.offset + self.scale)
 
     def loss_terms(self, parameters, batch) -> torch.Tensor:
         return ((parameters[0] - 1.0) ** 2).sum()
@@ -58,29 +62,100 @@ class UniformNoiseWithALevel(Exploration):
         self.adam.load_seed_states([state["adam"] for state in states])
 
 
+class ToyNoise(Declared):
+    """The toy method as declared: what the package learns of it from the registry."""
+
+    kind, name, title = "exploration", "toy", "the toy noise"
+    paper = "a toy method of tests/test_methods.py"
+    option_help = "toy, uniform noise with a level (tests only)"
+    cost_note = "1.5"
+    training = UniformNoiseWithALevel
+
+    @dataclass(frozen=True)
+    class Settings:
+        toy_width: float = setting(0.3, "the toy's noise width, relative to the action half-range",
+                                   bounds="positive")
+
+    @classmethod
+    def relative_cost(cls, td3) -> float:
+        return 1.5
+
+
 @pytest.fixture
 def toy():
-    register_exploration("toy", UniformNoiseWithALevel, paper="a toy method of tests/test_methods.py")
+    methods.register(ToyNoise)
     yield "toy"
-    del EXPLORATION_METHODS["toy"], EXPLORATION_PAPERS["toy"]
+    methods.unregister(ToyNoise)
+
+
+def toy_td3(**options):
+    """The small runs' training settings (:data:`test_training.TINY_TD3`) with the toy's exploration, as the training
+    settings made now that the toy is registered."""
+    from test_training import TINY_TD3
+
+    return td3_config_class()(**{**dataclasses.asdict(TINY_TD3), "exploration": "toy", **options})
 
 
 def test_registering_makes_the_name_a_setting_and_a_method(toy):
-    td3 = TD3Config(exploration="toy")
-    assert relative_cost(td3) == 1.5
-    from ilcsan.config import check_settings
-
+    td3 = td3_config_class()(exploration="toy")
+    assert methods.relative_cost(td3) == 1.5 and td3.toy_width == 0.3
     check_settings(td3)  # a valid choice now
     with pytest.raises(UserError, match="--exploration 'toys' is not one of: gaussian, noisy, toy"):
-        check_settings(TD3Config(exploration="toys"))
+        check_settings(td3_config_class()(exploration="toys"))
+    with pytest.raises(UserError, match="--toy-width must be a positive number"):
+        check_settings(td3_config_class()(exploration="toy", toy_width=0.0))
     with pytest.raises(ValueError, match="needs the paper"):
-        register_exploration("nameless", UniformNoiseWithALevel)
+        methods.register(type("Nameless", (ToyNoise,), {"name": "nameless", "paper": ""}))
+    with pytest.raises(ValueError, match="toy_width are another method's"):
+        methods.register(type("Twin", (ToyNoise,), {"name": "twin"}))
+
+
+def test_unregistering_gives_back_the_same_settings_class():
+    plain = td3_config_class()
+    methods.register(ToyNoise)
+    try:
+        assert td3_config_class() is not plain and "toy_width" not in {f.name for f in dataclasses.fields(plain)}
+    finally:
+        methods.unregister(ToyNoise)
+    assert td3_config_class() is plain
+
+
+def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tmp_path, monkeypatch):
+    """One declaration and one registration, and every part of the package that lists methods lists it."""
+    from ilcsan.analysis.collect import configuration_key
+    from ilcsan.cli import build_parser
+    from ilcsan.cli.options import build_run_config
+    from ilcsan.experiments.estimate import list_tables, row_step_cost
+    from ilcsan.experiments.grid_files import load_grid
+    from ilcsan.paper.layouts import TABLES
+
+    monkeypatch.setenv("COLUMNS", "1000")
+    parser = build_parser()
+    train_help = parser._subparsers._group_actions[0].choices["train"].format_help()
+    assert "--toy-width TOY_WIDTH" in train_help and "the toy's noise width" in train_help
+    assert "toy, uniform noise with a level (tests only)" in train_help  # among --exploration's choices
+    config = build_run_config(parser.parse_args(["train", "--exploration", "toy", "--toy-width", "0.2"]))
+    assert (config.td3.exploration, config.td3.toy_width) == ("toy", 0.2)
+
+    grid = tmp_path / "toy.toml"
+    grid.write_text('name = "toys"\ntasks = ["Pendulum-v1"]\n[[rows]]\nslug = "toy"\npreset = "ilc-san"\n'
+                    'td3 = { exploration = "toy", toy_width = 0.2 }\n')
+    row = load_grid(grid).rows[0]
+    assert row.td3 == {"exploration": "toy", "toy_width": 0.2} and row_step_cost(row) == 1.5
+
+    actor = actor_config("ilc-san").to_dict()
+    narrow = configuration_key(actor, {"exploration": "toy", "toy_width": 0.2})
+    assert '"toy_width": 0.2' in narrow and narrow != configuration_key(actor, {"exploration": "toy"})
+    assert configuration_key(actor, {"exploration": "toy"}) == configuration_key(
+        actor, {"exploration": "toy", "toy_width": 0.3})  # a config saved without it: its default
+
+    assert "the toy noise 1.5" in list_tables([TABLES["layer"]], 100.0, 2).split("\n\n")[-1]
 
 
 def test_a_registered_method_trains_checkpoints_and_resumes_exactly(toy, tmp_path, monkeypatch):
-    from test_training import assert_resumes_to_the_same_curve, tiny_method_run
+    from test_training import assert_resumes_to_the_same_curve, tiny_run
 
-    config = tiny_method_run(exploration="toy")
+    config = tiny_run(seeds=(0, 1), steps=450, td3=toy_td3())
     checkpoints = assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch)
     for straight, resumed in checkpoints:
         level = float(straight["exploration"]["level"][0])
@@ -93,7 +168,7 @@ def test_its_loss_term_runs_inside_the_compiled_update_as_it_does_uncompiled(toy
     from test_training import _random_batch, assert_same_updates
 
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    td3 = TD3Config(exploration="toy", critic_hidden=(16, 16))
+    td3 = td3_config_class()(exploration="toy", critic_hidden=(16, 16))
     eager = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8))
     compiled = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8), compile=True)
     rng = np.random.default_rng(5)
@@ -111,7 +186,6 @@ def test_a_run_uses_the_registered_method(toy, tmp_path, monkeypatch):
     original = UniformNoiseWithALevel.explore
     monkeypatch.setattr(UniformNoiseWithALevel, "explore",
                         lambda self, *args: calls.append(1) or original(self, *args))
-    config = tiny_run(steps=200, eval_every=200, td3=TD3Config(start_steps=150, update_after=100, update_every=25,
-                                                               batch_size=16, exploration="toy"))
+    config = tiny_run(steps=200, eval_every=200, td3=toy_td3(start_steps=150))
     train(config, tmp_path / "run", progress=False, log=lambda *_: None)
     assert len(calls) == 200 - 150  # every step after the random phase explores through the method

@@ -8,7 +8,9 @@ torch-free configuration; torch is imported when :func:`load` is first called, s
 
 from __future__ import annotations
 
-from .config import PRESETS, ActorConfig, RunConfig, TD3Config, actor_config
+from typing import Any
+
+from .config import PRESETS, ActorConfig, RunConfig, TrainingProtocol, actor_config, td3_config_class
 from .errors import UserError
 
 __version__ = "0.1.0"
@@ -22,4 +24,12 @@ def load(path, compile=False):
     return load_policy(path, compile=compile)
 
 
-__all__ = ["ActorConfig", "RunConfig", "TD3Config", "PRESETS", "actor_config", "load", "UserError", "__version__"]
+def __getattr__(name: str) -> Any:
+    """``TD3Config``: the training settings of the methods registered now (:func:`ilcsan.config.td3_config_class`)."""
+    if name == "TD3Config":
+        return td3_config_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["ActorConfig", "RunConfig", "TD3Config", "TrainingProtocol", "PRESETS", "actor_config", "load", "UserError",
+           "__version__"]

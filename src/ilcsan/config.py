@@ -12,23 +12,30 @@ the actor anywhere, including in the deploy runtime. Presets set every switch at
              (D_last, α_V^LI = 1) and tanh.
 ``dan``      TD3's deep actor network: (N, 256, ReLU, 256, ReLU, M, tanh), learning rate 1e-3.
 
-Every setting is a dataclass field whose metadata describes it once: its help, its choice list, its command-line
-flag where that differs from the field name. :mod:`ilcsan.cli.options` generates the command line from this
-metadata and :func:`check_settings` validates against it, so a switch, its default and its help cannot drift
-apart.
+Every setting is a dataclass field whose metadata describes it once (:func:`~ilcsan.settings.setting`): its help, its
+choice list, its command-line flag where that differs from the field name. :mod:`ilcsan.cli.options` generates the
+command line from this metadata and :func:`~ilcsan.settings.check_settings` validates against it, so a switch, its
+default and its help cannot drift apart. The training methods and algorithms (:mod:`ilcsan.methods`) declare their
+own settings, choices and help; the settings that choose them and the training settings of a run
+(:func:`td3_config_class`) are made from those declarations.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import types
-import typing
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
+from . import methods
 from .errors import UserError
+from .settings import Switch as Switch
+from .settings import check_settings as check_settings
+from .settings import current_spellings as current_spellings
+from .settings import described_fields as described_fields
+from .settings import flag_of as flag_of
+from .settings import renamed_note as renamed_note
+from .settings import setting as setting
+from .settings import setting_type as setting_type
 
 # ------------------------------------------------------------------------------ the choice lists
 ENCODERS: tuple[str, ...] = ("pop-det", "pop-prob", "pop", "layer", "two-neuron")
@@ -65,29 +72,6 @@ COLLAPSE_RETURN = 100.0
 about 40)."""
 BACKENDS: dict[str, str] = {"local": "a pool of worker processes on this machine", "ray": "a Ray cluster"}
 """``ilcsan reproduce --backend``: where a grid's runs execute."""
-ALGORITHM_PAPERS: dict[str, str] = {
-    "td3": "TD3 (Fujimoto, van Hoof, Meger, ICML 2018): twin critics, target policy smoothing, delayed actor "
-           "updates; how the ILC-SAN paper trains every actor",
-    "ddpg": "DDPG (Lillicrap et al., ICLR 2016) as TD3's paper re-implements it: one critic, no target policy "
-            "smoothing, the actor and targets updated at every critic update",
-    "sac": "SAC (Haarnoja et al. 2018, arXiv 1812.05905): the output populations decode a mean and a log-std of a "
-           "tanh-squashed Gaussian, twin critics, automatic entropy tuning; acts deterministically when evaluated",
-}
-"""The off-policy algorithms that train an actor (``--algorithm``), each with its paper
-(:mod:`ilcsan.rl.algorithms`)."""
-TARGET_ACTOR_PAPERS: dict[str, str] = {
-    "polyak": "the Polyak-averaged (soft-updated) copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
-    "proxy": "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)",
-}
-"""The actor in TD3's target values (``--target-actor``), each with its paper; a registered method
-(:func:`ilcsan.rl.methods.register_target_actor`) adds itself."""
-EXPLORATION_PAPERS: dict[str, str] = {
-    "gaussian": "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)",
-    "noisy": "NoisySAN: coloured noise in every spiking layer's charge and spike transmission and in the decoder, "
-             "with a learned decoder noise scale (Chen et al., arXiv 2403.04162)",
-}
-"""How the actor explores during training (``--exploration``), each with its paper; evaluation is deterministic. A
-registered method (:func:`ilcsan.rl.methods.register_exploration`) adds itself."""
 CONTACT_FORCES: dict[str, str] = {
     "zeroed": "as the paper's simulator (mujoco-py 2.1) read them: zeros, in the state and in the reward terms "
               "computed from them",
@@ -108,17 +92,6 @@ def contact_forces_of(task: str, choice: str | None) -> str:
     if choice is not None:
         return choice
     return "zeroed" if task.lower() in {name.lower() for name in CONTACT_FORCE_TASKS} else "simulated"
-
-
-NOISY_RETURN_REFERENCE: dict[str, float] = {
-    "Ant": 6000.0, "HalfCheetah": 12000.0, "Hopper": 4000.0, "Walker2d": 6000.0, "Humanoid": 6000.0,
-    "HumanoidStandup": 180000.0, "InvertedDoublePendulum": 10000.0, "BipedalWalker": 320.0,
-}
-"""NoisySAN's per-task return R* (``SUP_R`` in the authors' TD3 script in SpikingJelly's ``noisy_san`` example):
-the weight of the noise penalty is k = max(0, R)/R*, R the latest evaluation's mean return."""
-PROXY_HIDDEN: tuple[int, ...] = (512, 512)
-"""The proxy actor's hidden widths (ReLU MLP, tanh output): the default ``--proxy_hidden_sizes 512 512`` of the
-Proxy Target code as reproduced in ``madao2333/Proxy-Target-with-PLIF`` (main.py)."""
 
 
 class IntraMask(NamedTuple):
@@ -160,97 +133,23 @@ SAVED_WITHOUT_INTRA_TIMING = "paper"
 """The timing of an actor saved before ``intra_timing`` existed (a config.json, checkpoint or policy without it): every
 such actor ran Algorithm 1's."""
 
-NORMALIZATION_PAPERS: dict[str, str] = {
-    "none": "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)",
-    "care-bn": "CaRe-BN (Xu et al., ICLR 2026): batch normalisation of each synaptic layer's current, pooled over "
-               "the batch and the T steps; batch statistics in the actor's loss, running statistics (Kalman-style "
-               "gain, periodic recalibration) when acting; folded into the weights at export",
+# ------------------------------------------------------------------------- choosing a method or algorithm
+SELECTOR_HELP: dict[str, str] = {
+    "target_actor": "actor in TD3's and DDPG's target values",
+    "exploration": "how the actor explores",
+    "normalization": "normalisation of each spiking layer's synaptic current before its neurons",
+    "algorithm": "the off-policy algorithm that trains the actor",
 }
-"""How a spiking actor normalises each synaptic layer's current before its neurons (``--normalization``), each with
-its paper. An actor saved before this setting existed has ``none``, the default."""
-NORMALIZATIONS: tuple[str, ...] = tuple(NORMALIZATION_PAPERS)
+"""What the setting that chooses among a kind's declarations (:data:`ilcsan.methods.KINDS`) sets; its help goes on
+with each choice's ``option_help``."""
 
 
-
-# ------------------------------------------------------------------ settings described once
-class Switch(NamedTuple):
-    """A command-line switch that sets part of a field (``hidden`` is offered as a layer count and a width)."""
-
-    flag: str
-    help: str
-    default_of: Callable[[Any], Any]
-    """The switch's value implied by the field's value, e.g. ``len`` of the hidden widths."""
-
-
-def setting(default: Any, help: str, *, choices: tuple[str, ...] | Mapping[str, Any] | None = None,
-            flag: str | None = None, aliases: tuple[str, ...] = (), minimum: int | None = None,
-            bounds: str | None = None, switches: tuple[Switch, ...] = (),
-            renamed: Mapping[str, str] | None = None) -> Any:
-    """A dataclass field described once for the command line and for :func:`check_settings`.
-
-    ``flag`` is the CLI name when it is not the field name with dashes; ``minimum`` bounds whole numbers;
-    ``bounds`` is ``"decay"`` (a factor in [0, 1]), ``"positive"`` or ``"non-negative"`` for real numbers (None,
-    where a field allows it, passes); ``switches`` replace
-    the field's own switch by switches that each set part of it; ``renamed`` maps the old spellings of choices to
-    today's (:func:`current_spellings`).
-    """
-    metadata = {"help": help, "choices": choices, "flag": flag, "aliases": aliases, "minimum": minimum,
-                "bounds": bounds, "switches": switches, "renamed": dict(renamed or {})}
-    return field(default=default, metadata=metadata)
-
-
-def current_spellings(config: Any) -> None:
-    """Replace, in a frozen config just made, every choice written in an old spelling by today's (a config file,
-    grid or script of an earlier version keeps working; :func:`renamed_note` tells a user who typed one)."""
-    for item in described_fields(type(config)):
-        value = getattr(config, item.name)
-        if isinstance(value, str) and value in item.metadata["renamed"]:
-            object.__setattr__(config, item.name, item.metadata["renamed"][value])
-
-
-def renamed_note(config_class: type, values: Mapping[str, Any]) -> str | None:
-    """One line for the old spellings among ``values`` (by field name) as a user gave them, or None."""
-    notes = [f"{flag_of(item)} {values[item.name]} is now called {item.metadata['renamed'][values[item.name]]}"
-             for item in described_fields(config_class)
-             if isinstance(values.get(item.name), str) and values[item.name] in item.metadata["renamed"]]
-    return f"note: {'; '.join(notes)} (the old name still works)" if notes else None
-
-
-def flag_of(setting_field: dataclasses.Field) -> str:
-    """The command-line flag of a field: ``--`` and its metadata ``flag``, or its name with dashes."""
-    return "--" + (setting_field.metadata.get("flag") or setting_field.name.replace("_", "-"))
-
-
-def described_fields(config_class: type) -> list[dataclasses.Field]:
-    """The fields of a config class that carry a description (help) in their metadata."""
-    return [item for item in dataclasses.fields(config_class) if "help" in item.metadata]
-
-
-def setting_type(config_class: type, setting_field: dataclasses.Field) -> Any:
-    """The Python type of a field's value (``int | None`` → int)."""
-    hint = typing.get_type_hints(config_class)[setting_field.name]
-    if isinstance(hint, types.UnionType):
-        hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
-    return hint
-
-
-def check_settings(config: Any) -> None:
-    """Raise :class:`UserError` naming the flag for any field whose value its metadata does not allow."""
-    for item in described_fields(type(config)):
-        value, meta, name = getattr(config, item.name), item.metadata, flag_of(item)
-        optional = value is None and item.default is None  # None: another layer decides (the field's help says)
-        if meta["choices"] is not None and not optional and value not in meta["choices"]:
-            raise UserError(f"{name} {value!r} is not one of: {', '.join(meta['choices'])}")
-        if meta["minimum"] is not None and value is not None and value < meta["minimum"]:
-            raise UserError(f"{name} must be at least {meta['minimum']}, got {value}")
-        if meta["bounds"] is not None and value is None:
-            continue
-        if meta["bounds"] == "non-negative" and not (math.isfinite(value) and value >= 0):
-            raise UserError(f"{name} must be a number of at least 0, got {value}")
-        if meta["bounds"] == "decay" and not (math.isfinite(value) and 0.0 <= value <= 1.0):
-            raise UserError(f"{name} is a decay factor in [0, 1], got {value}")
-        if meta["bounds"] == "positive" and not (math.isfinite(value) and value > 0):
-            raise UserError(f"{name} must be a positive number, got {value}")
+def _selector(kind: str) -> Any:
+    """The setting that chooses among the registered declarations of ``kind``: their names (the mapping, which
+    registering changes), the first as default, their earlier names renamed, their phrases as help."""
+    renamed = {old: name for name, method in methods.registered(kind).items() for old in method.renamed}
+    return setting(methods.default(kind), lambda: f"{SELECTOR_HELP[kind]}: {methods.either(kind)}",
+                   choices=methods.registered(kind), renamed=renamed)
 
 
 # ------------------------------------------------------------------------------------ the actor
@@ -308,13 +207,7 @@ class ActorConfig:
     surrogate_width: float = setting(0.5, "rectangular surrogate window w", bounds="positive")
     enc_v_th: float = setting(0.999, "threshold of the encoder's soft-reset IF neurons", bounds="positive")
     learning_rate: float = setting(1e-4, "actor learning rate; DAN's is 1e-3", flag="actor-lr", bounds="positive")
-    normalization: str = setting("none", "normalisation of each spiking layer's synaptic current before its neurons: "
-                                         "none (the paper), or care-bn (CaRe-BN, Xu et al. 2026: batch statistics "
-                                         "in the actor's loss, running statistics moved by a Kalman-style gain after "
-                                         "each actor step and recalibrated from the replay every 5000 steps when "
-                                         "acting; on the output populations the feed-forward current only; folded "
-                                         "into the weights on export; spiking actors only)",
-                                 choices=NORMALIZATIONS)
+    normalization: str = _selector("normalization")
 
     @property
     def fully_spiking(self) -> bool:
@@ -394,8 +287,10 @@ def actor_config(preset: str = "ilc-san", **overrides: Any) -> ActorConfig:
 
 # ------------------------------------------------------------------------------------ TD3 and the run
 @dataclass(frozen=True)
-class TD3Config:
-    """TD3 hyper-parameters of the paper (Section IV-A) and the authors' code."""
+class TrainingProtocol:
+    """The training settings every algorithm and method shares: TD3's hyper-parameters of the paper (Section IV-A)
+    and the authors' code. The training settings of a run (:func:`td3_config_class`, ``TD3Config``) are these and
+    every registered method's and algorithm's own (:mod:`ilcsan.methods`)."""
 
     gamma: float = 0.99  # reward discount
     tau: float = 0.005  # soft target update factor
@@ -411,32 +306,6 @@ class TD3Config:
     update_after: int = setting(1_000, "first TD3 update at this step", minimum=0)
     update_every: int = setting(50, "TD3 updates run in chunks of this many, one per environment step, "
                                     "as in the authors' code", minimum=1)
-    target_actor: str = setting("polyak", "actor in TD3's and DDPG's target values: polyak, the Polyak-averaged copy "
-                                          "of the actor (the paper), or proxy, Proxy Target's continuous proxy "
-                                          "imitating the online actor (Xu et al. 2025; spiking actors only)",
-                                choices=TARGET_ACTOR_PAPERS, renamed={"spiking": "polyak"})
-    proxy_iterations: int = setting(3, "Proxy Target: regression steps of the proxy per TD3 update (K; 1 with "
-                                       "--proxy-lr 3e-3 is the cheap setting)", minimum=1)
-    proxy_lr: float = setting(1e-3, "Proxy Target: the proxy's Adam learning rate", bounds="positive")
-    exploration: str = setting("gaussian", "how the actor explores: TD3's Gaussian action noise (the paper), or "
-                                           "NoisySAN's coloured noise inside the spiking neurons (Chen et al. "
-                                           "2024; spiking actors only)", choices=EXPLORATION_PAPERS)
-    preaction_penalty: float = setting(0.0, "weight λ of a penalty λ·mean(O²) on the actor's pre-tanh output O, added "
-                                            "to the actor's loss (0: the paper; > 0 pulls a saturated actor back "
-                                            "into tanh's range)", bounds="non-negative")
-    noisy_sigma: float = setting(0.5, "NoisySAN: sigma_init; a layer of D neurons gets the fixed noise scale "
-                                      "sigma_init/sqrt(D) on charge and transmission, the decoder's learned "
-                                      "scale starts at sigma_init/sqrt(M)", bounds="positive")
-    noisy_beta: float = setting(1.0, "NoisySAN: spectral exponent of the noise, power ~ 1/f^beta (0 white, 1 "
-                                     "pink: the paper's choice, 2 brown)", bounds="non-negative")
-    entropy_lr: float = setting(3e-4, "SAC: Adam learning rate of the entropy coefficient's logarithm log α (SAC's "
-                                      "paper: 3e-4)", bounds="positive")
-    initial_entropy_coefficient: float = setting(1.0, "SAC: the entropy coefficient α at the start; it then tunes "
-                                                      "itself toward the target entropy −M", bounds="positive")
-    noisy_return_reference: float | None = setting(
-        None, "NoisySAN: the return R* at which the noise penalty's weight max(0, R)/R* reaches 1 (default per "
-              "paper task: Hopper 4000, Walker2d/Ant/Humanoid 6000, HalfCheetah 12000, ...; needed for other "
-              "tasks)", bounds="positive")
 
     def __post_init__(self) -> None:
         current_spellings(self)
@@ -447,18 +316,51 @@ class TD3Config:
         return data
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> TD3Config:
+    def from_dict(cls, data: dict[str, Any]) -> TrainingProtocol:
         values = dict(data)
         if "critic_hidden" in values:
             values["critic_hidden"] = tuple(values["critic_hidden"])
         return cls(**values)
 
 
-METHOD_SETTINGS: tuple[str, ...] = ("target_actor", "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma",
-                                    "noisy_beta", "noisy_return_reference", "preaction_penalty", "entropy_lr",
-                                    "initial_entropy_coefficient")
-"""The :class:`TD3Config` fields that choose or tune how the actor is trained (a grid row's own settings, part of a
-run's identity in reports); the others are the protocol every row shares."""
+_ASSEMBLED: dict[tuple[type, ...], type[TrainingProtocol]] = {}
+
+
+def td3_config_class() -> type[TrainingProtocol]:
+    """The training settings of a run (``TD3Config``, the ``td3`` of a :class:`RunConfig` and of config.json), a
+    frozen dataclass: the :class:`TrainingProtocol` and, kind by kind (:data:`ilcsan.methods.KINDS`), the setting
+    that chooses among a kind's declarations (``target_actor``, ``exploration``) and each registered declaration's
+    ``Settings``. Made once per set of registered declarations (the same class while they do not change)."""
+    registered = methods.every()
+    if registered not in _ASSEMBLED:
+        fields: list[tuple[str, Any, Any]] = []
+        for kind in methods.KINDS:
+            if kind in methods.TD3_SELECTORS:
+                fields.append((kind, str, _selector(kind)))
+            for method in methods.registered(kind).values():
+                fields += method.setting_fields()
+        clashes = sorted({name for name, _, _ in fields} & {item.name for item in dataclasses.fields(TrainingProtocol)})
+        if clashes:
+            raise ValueError(f"declared settings {', '.join(clashes)} are the protocol's")
+        assembled = dataclasses.make_dataclass("TD3Config", fields, bases=(TrainingProtocol,), frozen=True)
+        assembled.__module__, assembled.__doc__ = __name__, td3_config_class.__doc__
+        _ASSEMBLED[registered] = assembled
+    return _ASSEMBLED[registered]
+
+
+def method_settings() -> tuple[str, ...]:
+    """The training settings that choose or tune how the actor is trained — the choosing settings and every
+    declaration's own (a grid row's own settings, part of a run's identity in reports); the others, the
+    :class:`TrainingProtocol`, every row shares."""
+    protocol = {item.name for item in dataclasses.fields(TrainingProtocol)}
+    return tuple(item.name for item in dataclasses.fields(td3_config_class()) if item.name not in protocol)
+
+
+def __getattr__(name: str) -> Any:
+    """``TD3Config``: the training settings of the methods registered now (:func:`td3_config_class`)."""
+    if name == "TD3Config":
+        return td3_config_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -471,11 +373,8 @@ class RunConfig:
     eval_every: int = setting(10_000, "evaluate every this many steps", minimum=1)
     eval_episodes: int = setting(10, "episodes per evaluation", minimum=1)
     actor: ActorConfig = field(default_factory=ActorConfig)
-    td3: TD3Config = field(default_factory=TD3Config)
-    algorithm: str = setting("td3", "the off-policy algorithm that trains the actor: td3 (the paper's), ddpg (one "
-                                    "critic, no target smoothing or delay) or sac (squashed Gaussian actor: the "
-                                    "output populations decode a mean and a log-std; entropy tuned)",
-                             choices=ALGORITHM_PAPERS)
+    td3: TrainingProtocol = field(default_factory=lambda: td3_config_class()())
+    algorithm: str = _selector("algorithm")
     contact_forces: str | None = setting(None, "a MuJoCo task's external contact forces. zeroed: as the paper's "
                                                "simulator read them (mujoco-py 2.1): zeros in the state and in the "
                                                "rewards computed from them; simulated: MuJoCo's. Default: zeroed for "
@@ -528,7 +427,7 @@ class RunConfig:
         (None), as a config made with that default holds them."""
         values = {key: value for key, value in data.items() if key in {f.name for f in dataclasses.fields(cls)}}
         values["actor"] = ActorConfig.from_dict(data["actor"])
-        values["td3"] = TD3Config.from_dict(data["td3"])
+        values["td3"] = td3_config_class().from_dict(data["td3"])
         values["seeds"] = tuple(data.get("seeds", [data.get("seed", 0)]))
         recorded, task = data.get("contact_forces", RECORDED_BEFORE_CONTACT_FORCES), values.get("task", cls.task)
         values["contact_forces"] = None if recorded == contact_forces_of(task, None) else recorded

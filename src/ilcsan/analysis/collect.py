@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import METHOD_SETTINGS, RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TD3Config
+from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TrainingProtocol, method_settings, td3_config_class
 from ..errors import UserError
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
@@ -85,7 +85,7 @@ class RunRecord:
     @property
     def stuck(self) -> bool:
         """Whether the run ended stuck in one constant saturated action (:func:`~ilcsan.snn.diagnostics.is_stuck`)."""
-        start_steps = self.td3.get("start_steps", TD3Config.start_steps)
+        start_steps = self.td3.get("start_steps", TrainingProtocol.start_steps)
         return is_stuck(self.evaluation_rows(), start_steps)
 
     @property
@@ -243,17 +243,19 @@ def _parse_result(result: Mapping[str, Any],
 
 
 def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any], algorithm: str = "td3") -> str:
-    """Algorithm, actor settings and training method (:data:`~ilcsan.config.METHOD_SETTINGS`) as one comparable
-    key; a setting a saved config lacks (saved before it existed) counts as its default, as it does when the run is
-    loaded."""
-    method = {key: _current(key, td3.get(key, getattr(TD3Config, key))) for key in METHOD_SETTINGS}
+    """Algorithm, actor settings and training method (every declared method's settings,
+    :func:`~ilcsan.config.method_settings`) as one comparable key; a setting a saved config lacks (saved before it
+    existed) counts as its default, as it does when the run is loaded."""
+    settings = td3_config_class()
+    method = {key: _current(settings, key, td3.get(key, getattr(settings, key))) for key in method_settings()}
     return json.dumps({"algorithm": algorithm, "actor": _complete_actor(actor), "method": method}, sort_keys=True,
                       default=str)
 
 
-def _current(name: str, value: Any) -> Any:
-    """A saved TD3 setting in today's spelling (a choice renamed since: :func:`~ilcsan.config.current_spellings`)."""
-    renamed = TD3Config.__dataclass_fields__[name].metadata.get("renamed", {})
+def _current(settings: type, name: str, value: Any) -> Any:
+    """A saved training setting of ``settings`` in today's spelling (a choice renamed since:
+    :func:`~ilcsan.config.current_spellings`)."""
+    renamed = settings.__dataclass_fields__[name].metadata.get("renamed", {})
     return renamed.get(value, value) if isinstance(value, str) else value
 
 

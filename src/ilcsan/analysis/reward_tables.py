@@ -12,7 +12,7 @@
 
 A run that ``ilcsan reproduce`` did not write (no table/row tags) is placed in a table's row by its label, else
 by its configuration: the same algorithm, the same actor settings, all of them, and the same training method
-(:data:`~ilcsan.config.METHOD_SETTINGS`) as the row's — so ``ilcsan train --task Hopper --actor
+(:func:`~ilcsan.config.method_settings`) as the row's — so ``ilcsan train --task Hopper --actor
 ilc-san`` lands in Table perf's ILC-SAN (E_pop_det) row.
 
 A cell carries the paper's value for its (table, row, task) where the paper has one; a task the paper

@@ -12,7 +12,7 @@ import sys
 
 from .. import __version__
 from ..arguments import non_negative_int, positive_int
-from ..config import BACKENDS, COLLAPSE_RETURN, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TD3Config
+from ..config import BACKENDS, COLLAPSE_RETURN, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TrainingProtocol
 from ..deploy.lava import run_options
 from ..errors import TrainingDiverged, UserError
 from ..paper.layouts import SEEDS, TABLES
@@ -118,7 +118,7 @@ def _add_reproduce_command(subparsers) -> None:
     reproduce.add_argument("--rows", default=None, help="comma-separated subset of the table's rows")
     for name in ("eval_every", "eval_episodes"):
         add_setting(reproduce, RunConfig, name, default=None, default_text=_GRIDS)
-    add_setting(reproduce, TD3Config, "start_steps", default=None, default_text=_GRIDS)
+    add_setting(reproduce, TrainingProtocol, "start_steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--out", default="runs/reproduce", help="grid directory (default runs/reproduce)")
     reproduce.add_argument("--backend", default="local", help=choices_help(BACKENDS, "local"))
     reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")

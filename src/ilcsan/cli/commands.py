@@ -8,16 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..config import (
-    ALGORITHM_PAPERS,
-    EXPLORATION_PAPERS,
-    NORMALIZATION_PAPERS,
-    PRESET_SUMMARIES,
-    TARGET_ACTOR_PAPERS,
-    RunConfig,
-    TD3Config,
-    actor_config,
-)
+from .. import methods
+from ..config import PRESET_SUMMARIES, RunConfig, actor_config, td3_config_class
 from .options import build_run_config
 
 
@@ -139,6 +131,10 @@ def cmd_lava(args: argparse.Namespace) -> int:
         return subprocess.run(command, check=False).returncode
 
 
+LISTED_KINDS = ("algorithm", "target_actor", "exploration", "normalization", "loss_term")
+"""The order in which ``ilcsan actors`` lists the registered declarations (:mod:`ilcsan.methods`)."""
+
+
 def cmd_actors(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({name: actor_config(name).to_dict() for name in PRESET_SUMMARIES}, indent=2))
@@ -154,13 +150,10 @@ def cmd_actors(args: argparse.Namespace) -> int:
                      "lr": c.learning_rate, "fully spiking": "yes" if c.fully_spiking else "no",
                      "what": summary})
     _print_table(rows, ["preset", "encoder", "neuron", "hidden", "intra", "decoder", "lr", "fully spiking", "what"])
-    print("\nalgorithms (every actor) and training methods (beyond the defaults: spiking actors only; DAN keeps TD3's "
-          "own target and action noise):")
-    methods = [{"option": f"--algorithm {name}", "what": paper} for name, paper in ALGORITHM_PAPERS.items()]
-    methods += [{"option": f"--target-actor {name}", "what": paper} for name, paper in TARGET_ACTOR_PAPERS.items()]
-    methods += [{"option": f"--exploration {name}", "what": paper} for name, paper in EXPLORATION_PAPERS.items()]
-    methods += [{"option": f"--normalization {name}", "what": paper} for name, paper in NORMALIZATION_PAPERS.items()]
-    _print_table(methods, ["option", "what"])
+    print("\nalgorithms and training methods (actors: which it trains; DAN keeps TD3's own target and action noise):")
+    listed = [{"option": method.option(), "actors": "spiking" if method.spiking_only else "all", "what": method.paper}
+              for kind in LISTED_KINDS for method in methods.registered(kind).values()]
+    _print_table(listed, ["option", "actors", "what"])
     return 0
 
 
@@ -188,8 +181,8 @@ DEMO_EVALUATIONS = 12
 def demo_config(task: str, steps: int, seed: int, threads: int | None):
     """The demo's run: ILC-SAN, evaluated every ``steps / 12`` steps on 5 episodes, updates from step 1000."""
     return RunConfig(task=task, seeds=(seed,), steps=steps, eval_every=max(1, steps // DEMO_EVALUATIONS),
-                     eval_episodes=5, actor=actor_config("ilc-san"), td3=TD3Config(start_steps=1000, update_after=1000),
-                     threads=threads)
+                     eval_episodes=5, actor=actor_config("ilc-san"),
+                     td3=td3_config_class()(start_steps=1000, update_after=1000), threads=threads)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ import dataclasses
 import json
 
 from .. import load
-from ..config import RunConfig, TD3Config, described_fields
+from ..config import RunConfig, described_fields, td3_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES
 from .options import parse_seeds
@@ -24,7 +24,7 @@ def options_from_args(args):
     from ..experiments.grid import GridOptions
 
     return GridOptions(seeds=None if args.seeds is None else parse_seeds(args.seeds), tasks=_split(args.tasks),
-                       rows=_split(args.rows), run=_given(args, RunConfig), td3=_given(args, TD3Config))
+                       rows=_split(args.rows), run=_given(args, RunConfig), td3=_given(args, td3_config_class()))
 
 
 def _given(args, config_class: type) -> dict:

@@ -11,17 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from ..arguments import int_at_least, positive_int
-from ..config import (
-    ActorConfig,
-    RunConfig,
-    TD3Config,
-    actor_config,
-    check_settings,
-    flag_of,
-    renamed_note,
-    setting_type,
-)
+from ..config import ActorConfig, RunConfig, actor_config, method_settings, td3_config_class
 from ..errors import UserError
+from ..settings import check_settings, flag_of, help_text, renamed_note, setting_type
 
 # ------------------------------------------------------------------------------------ helpers
 MAX_SEEDS = 1000
@@ -104,7 +96,7 @@ def add_setting(parser, config_class: type, name: str, *, default: Any = datacla
         shown = None if value is None else f"default: {value}"
     parser.add_argument(flag_of(setting_field), *meta["aliases"], dest=name, default=value,
                         type=_argparse_type(config_class, setting_field), metavar=_metavar(setting_field),
-                        help=_help(meta["help"], shown))
+                        help=_help(help_text(setting_field), shown))
 
 
 def actor_switches() -> list[tuple[str, tuple[str, ...], dict[str, Any]]]:
@@ -125,7 +117,7 @@ def actor_switches() -> list[tuple[str, tuple[str, ...], dict[str, Any]]]:
             switches.append((flag_of(item), meta["aliases"], {
                 "dest": item.name, "default": item.default if is_preset else None, "metavar": _metavar(item),
                 "type": _argparse_type(ActorConfig, item),
-                "help": _help(meta["help"], f"{'default' if is_preset else 'paper'}: {item.default}")}))
+                "help": _help(help_text(item), f"{'default' if is_preset else 'paper'}: {item.default}")}))
     return switches
 
 
@@ -144,10 +136,14 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
 RUN_SETTINGS = ("algorithm", "contact_forces", "eval_every", "eval_episodes", "device", "engine", "threads", "compile",
                 "matmul", "checkpoint_minutes")
 """The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
-TD3_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size", "preaction_penalty", "target_actor",
-                "proxy_iterations", "proxy_lr", "exploration", "noisy_sigma", "noisy_beta", "noisy_return_reference",
-                "entropy_lr", "initial_entropy_coefficient")
-"""The :class:`~ilcsan.config.TD3Config` fields ``train`` offers."""
+PROTOCOL_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size")
+"""The fields of the :class:`~ilcsan.config.TrainingProtocol` that ``train`` offers."""
+
+
+def td3_settings() -> tuple[str, ...]:
+    """The training settings ``train`` offers: :data:`PROTOCOL_SETTINGS` and every method's and algorithm's
+    (:func:`~ilcsan.config.method_settings`)."""
+    return PROTOCOL_SETTINGS + method_settings()
 
 
 def _add_run_options(parser: argparse.ArgumentParser) -> None:
@@ -156,22 +152,22 @@ def _add_run_options(parser: argparse.ArgumentParser) -> None:
     add_setting(parser, RunConfig, "steps")
     for name in RUN_SETTINGS:
         add_setting(parser, RunConfig, name)
-    for name in TD3_SETTINGS:
-        add_setting(parser, TD3Config, name)
+    for name in td3_settings():
+        add_setting(parser, td3_config_class(), name)
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
     """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments; with ``--like``, TD3 settings that have
     no flag (γ, τ, the critic, ...) are the liked run's."""
     like = getattr(args, "like_config", None)
-    td3 = {name: getattr(args, name) for name in TD3_SETTINGS}
-    note = renamed_note(TD3Config, td3)
+    td3 = {name: getattr(args, name) for name in td3_settings()}
+    note = renamed_note(td3_config_class(), td3)
     if note:
         print(note, file=sys.stderr)
     config = RunConfig(
         task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
         actor=actor_config(args.preset, **_actor_settings(args, like)),
-        td3=dataclasses.replace(like.td3, **td3) if like is not None else TD3Config(**td3),
+        td3=dataclasses.replace(like.td3, **td3) if like is not None else td3_config_class()(**td3),
         label=getattr(args, "label", None), **{name: getattr(args, name) for name in RUN_SETTINGS},
     )
     check_settings(config)
@@ -228,7 +224,7 @@ def like_defaults(config: RunConfig) -> dict[str, Any]:
                               "preset": config.actor.preset}
     values |= {name: getattr(config, name) for name in RUN_SETTINGS}  # contact_forces None (the task's default)
     # stays None, so that --like with another --task takes that task's default
-    values |= {name: getattr(config.td3, name) for name in TD3_SETTINGS}
+    values |= {name: getattr(config.td3, name) for name in td3_settings()}
     for item in dataclasses.fields(ActorConfig):
         value = getattr(config.actor, item.name)
         for part in item.metadata["switches"]:

@@ -64,10 +64,10 @@ def flush_denormals(on: bool = True) -> bool:
     it); from Python, call this before any multi-threaded torch work.
 
     Why: Adam's moments m and v of a weight whose gradient is (nearly) zero — the input weights of a neuron that
-    stays silent, a dead ReLU of Proxy Target's proxy — decay geometrically (×β₁, ×β₂ per update) into the
-    denormal range within a few hundred updates and stay there while tiny gradients keep arriving. Each
-    arithmetic operation on a denormal then takes a microcode assist, many times slower than a normal one, and
-    a large share of the moments of a proxy or critic can be denormal after a thousand updates. Flushing them
+    stays silent, a dead ReLU of an MLP (a critic, a training method's own network) — decay geometrically (×β₁, ×β₂
+    per update) into the denormal range within a few hundred updates and stay there while tiny gradients keep
+    arriving. Each arithmetic operation on a denormal then takes a microcode assist, many times slower than a normal
+    one, and a large share of the moments of such an MLP can be denormal after a thousand updates. Flushing them
     changes an Adam step by less than 1e-30 (m̂ / (√v̂ + ε) with ε = 1e-8 and |m̂| < 1.2e-38), far below a
     weight's last bit.
     """

@@ -194,7 +194,7 @@ def signals_held(compiled: Callable, inputs: list) -> Any:
 
 class CompiledPerShape:
     """A module's forward through one :class:`DirectProgram` per shape and dtype of its inputs: acting (K, 1, N),
-    evaluation (K, E, N) and Proxy Target's regression targets each get their own program. Call it under
+    evaluation (K, E, N) and a training method's own batches each get their own program. Call it under
     ``torch.no_grad()`` only."""
 
     def __init__(self, module: nn.Module, function: Callable | None = None):

@@ -27,8 +27,8 @@ from ..snn.normalization import RUNNING_BUFFERS, NormStatistics, fold_into_linea
 Fold = Callable[[dict[str, torch.Tensor], str], dict[str, torch.Tensor]]
 
 def fold_normalization(state: dict[str, torch.Tensor], name: str) -> dict[str, torch.Tensor]:
-    """CaRe-BN's normalisation ``norms.<l>`` (the prefix of buffer ``name``) folded into synaptic layer
-    ``layers.<l>``, whose current it normalises: W' = s W, b' = s (b − μ̂) + β with s = γ / √(σ̂² + ε)
+    """The actor's normalisation ``norms.<l>`` (:mod:`ilcsan.snn.normalization`; the prefix of buffer ``name``) folded
+    into synaptic layer ``layers.<l>``, whose current it normalises: W' = s W, b' = s (b − μ̂) + β with s = γ / √(σ̂² + ε)
     (:func:`~ilcsan.snn.normalization.fold_into_linear`), and every tensor of ``norms.<l>`` (γ, β and the four
     buffers) removed. One fold per layer: for the layer's other buffers, already gone, ``state`` is returned as it
     is. A buffer of that name outside such a normalisation is refused (:func:`unfoldable`)."""
@@ -49,7 +49,7 @@ def fold_normalization(state: dict[str, torch.Tensor], name: str) -> dict[str, t
 FOLDS: dict[str, Fold] = {buffer: fold_normalization for buffer in RUNNING_BUFFERS}
 """How an export folds a persistent buffer, by the last part of its name (``running_mean`` for
 ``norms.0.running_mean``): ``fold(state, name)`` returns seed 0's ``state`` (names → tensors without the
-ensemble dimension) with buffer ``name`` folded into the parameters it acts on and removed. CaRe-BN's four buffers
+ensemble dimension) with buffer ``name`` folded into the parameters it acts on and removed. A normalisation's buffers
 (:data:`~ilcsan.snn.normalization.RUNNING_BUFFERS`) fold with their layer's γ and β (:func:`fold_normalization`)."""
 
 

@@ -6,12 +6,10 @@ import math
 import os
 from collections.abc import Iterable
 
-from ..config import TD3Config
+from .. import methods
+from ..config import td3_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
-from ..rl.methods import relative_cost
-from ..rl.methods.noisysan import NOISY_STEP_COST
-from ..rl.methods.proxy_target import PROXY_COST_PER_ITERATION
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
 DEFAULT_STEPS_PER_SECOND = 130.0
@@ -29,11 +27,10 @@ TASK_STEP_COST: dict[str, float] = {
     "Ant": 2.5, "Humanoid": 6.3, "HumanoidStandup": 7.2,
 }
 """Time per environment step of one ILC-SAN seed on a task relative to Hopper's, at the paper's protocol (float32, one
-torch thread per core, both cores busy, evaluations included with episodes at their full length), as
-``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``: the median of three runs, rounded; the runs spread by
-up to ±0.3, HumanoidStandup ±1.2). Ratios hold across machines far better than steps/s do; the larger input
-populations of Ant (1 110 neurons) and Humanoid (3 760) make their products the dearest. A task not listed (a user's
-own) is assumed to cost what Hopper does."""
+torch thread, evaluations included with episodes at their full length), as ``benchmarks/task_cost.py`` measured it
+(``benchmarks/RESULTS.md``: the median of three runs, rounded; the runs spread by up to ±0.3, HumanoidStandup ±1.2).
+Ratios hold across machines far better than steps/s do; the wide input populations of Ant (1 110 neurons) and Humanoid
+(3 760) make their products the dearest. A task not listed (a user's own) is assumed to cost what Hopper does."""
 
 EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
@@ -68,11 +65,11 @@ def steps_per_second_default() -> float:
 
 
 def row_step_cost(row: RowSpec) -> float:
-    """A row's time per environment step relative to plain ILC-SAN's: DAN's is cheaper; a training method's is its
-    :meth:`~ilcsan.rl.methods.Method.relative_cost` (Proxy Target and NoisySAN are dearer)."""
+    """A row's time per environment step relative to plain ILC-SAN's: DAN's is cheaper; the row's training methods
+    multiply it by their declared :meth:`~ilcsan.methods.Declared.relative_cost`."""
     if row.preset == "dan":
         return DAN_STEP_COST
-    return relative_cost(TD3Config(**row.td3))
+    return methods.relative_cost(td3_config_class()(**row.td3))
 
 
 def task_step_cost(task: str) -> float:
@@ -131,6 +128,11 @@ def _format_hours(hours: float) -> str:
     return f"≈ {hours:,.0f} h ({hours / 24:,.1f} days)" if hours >= 48 else f"≈ {hours:,.1f} h"
 
 
+def _method_costs() -> str:
+    """Each registered method that costs more than a plain step, with its declared cost: 'Title note, ...'."""
+    return ", ".join(f"{method.title} {method.cost_note}" for method in methods.every() if method.cost_note)
+
+
 def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: float | None = None,
                 cores: int | None = None) -> str:
     """The text of ``ilcsan reproduce --list``."""
@@ -142,8 +144,7 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
               "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
               "a run's hours = steps × its task's cost × its row's cost / (steps/s) / 3600 (tasks relative to Hopper's "
               "step, float32, as benchmarks/task_cost.py measured them; rows relative to ILC-SAN's step: DAN "
-              f"{DAN_STEP_COST:g}, Proxy Target 1 + {PROXY_COST_PER_ITERATION:g}·K, NoisySAN {NOISY_STEP_COST:g}; "
-              "the methods' costs multiply), "
+              f"{DAN_STEP_COST:g}, {_method_costs()}; the methods' costs multiply), "
               "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "
               "cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.collect import RunRecord
-from ..config import RunConfig, TD3Config, actor_config, check_settings, described_fields
+from ..config import RunConfig, actor_config, check_settings, described_fields, td3_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
@@ -38,7 +38,7 @@ class GridOptions:
     tasks: tuple[str, ...] | None = None  # the table's tasks, or any others (paper short names, Gymnasium ids)
     rows: tuple[str, ...] | None = None  # a subset of the table's row slugs
     run: Mapping[str, Any] = field(default_factory=dict)  # RunConfig settings (RUN_SETTINGS), e.g. steps, matmul
-    td3: Mapping[str, Any] = field(default_factory=dict)  # TD3Config settings, e.g. start_steps
+    td3: Mapping[str, Any] = field(default_factory=dict)  # training settings (TD3Config), e.g. start_steps
 
 
 @dataclass(frozen=True)
@@ -128,7 +128,7 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
     protocol = {name: settings.pop(name) for name in PROTOCOL if name in settings}
     shrunk = dataclasses.replace(spec, tasks=tasks, rows=rows, seeds=len(seeds), **protocol)
     try:
-        td3 = TD3Config(**dict(options.td3))
+        td3 = td3_config_class()(**dict(options.td3))
     except TypeError as error:
         raise UserError(f"unknown TD3 setting: {error}") from None
     out = Path(out).expanduser().absolute()

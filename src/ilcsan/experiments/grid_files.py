@@ -15,18 +15,18 @@ from pathlib import Path
 from typing import Any
 
 from ..config import (
-    METHOD_SETTINGS,
     ActorConfig,
-    TD3Config,
     actor_config,
     check_settings,
     described_fields,
+    method_settings,
     setting_type,
+    td3_config_class,
 )
 from ..errors import UserError
+from ..methods import check_methods
 from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
-from ..rl.methods import check_methods
 
 
 def _actor_switches() -> dict[str, tuple[str, type]]:
@@ -56,8 +56,6 @@ _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
 
 _TOP_KEYS = tuple(item.name for item in dataclasses.fields(TableSpec))  # name, caption, tasks, rows, protocol
 _ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
-ROW_TD3_KEYS: tuple[str, ...] = METHOD_SETTINGS
-"""The TD3 settings a grid row may set (its training method); the grid's other TD3 settings are shared."""
 
 
 def is_task_name(task: str) -> bool:
@@ -222,11 +220,13 @@ def _typed(key: str, value: Any, kind: type, where: str) -> Any:
 
 
 def _row_td3(item: Mapping[str, Any], network: str, where: str) -> dict[str, Any]:
-    """A row's ``td3`` table (its training method), checked against :class:`TD3Config`'s declared settings."""
+    """A row's ``td3`` table (its training method), checked against the declared settings: a row may set the
+    training settings that choose or tune a method (:func:`~ilcsan.config.method_settings`); the grid's others are
+    shared."""
     td3 = item.get("td3", {})
-    _check_keys(td3, ROW_TD3_KEYS, f"{where}: td3")
+    _check_keys(td3, method_settings(), f"{where}: td3")
     try:
-        settings = TD3Config(**td3)
+        settings = td3_config_class()(**td3)
         check_settings(settings)
         check_methods(settings, network)
     except (UserError, TypeError) as error:

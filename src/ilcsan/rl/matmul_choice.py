@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from .. import methods
 from ..compute.matmul import (
     MATMUL_PATHS,
     MatmulPath,
@@ -19,7 +20,7 @@ from ..compute.matmul import (
     onednn_available,
     product_times,
 )
-from ..config import PROXY_HIDDEN, SPIKING_ENCODERS, RunConfig
+from ..config import SPIKING_ENCODERS, RunConfig
 from ..snn.diagnostics import DIAGNOSTIC_STATES
 from .algorithms import algorithm_class
 
@@ -29,20 +30,23 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
     """The (a, w) shapes of the products of this run (:data:`~ilcsan.compute.matmul.Product`), each with how many
     times the run computes it per environment step once updates run (one update a step; ``update_every`` steps, then
     as many updates), for the run's algorithm (:mod:`ilcsan.rl.algorithms`: its critics per seed C, the critics its
-    actor loss evaluates, its policy delay d, its actor's readouts per action). For each actor layer: acting's forward
-    product over T rows (every step); an update's products over T·B rows: the forward of the actor giving the next
-    actions (TD3's and DDPG's target actor unless Proxy Target replaces it, SAC's own actor; every update) and the
+    actor loss evaluates, its policy delay d, its actor's readouts per action) and for its methods (what each declares
+    it changes, :meth:`~ilcsan.methods.Declared.products`). For each actor layer: acting's forward product over T rows
+    (every step); an update's products over T·B rows: the forward of the actor giving the next actions (TD3's and
+    DDPG's target actor, SAC's own actor; every update, unless a method gives them from a network of its own) and the
     forward and both backward products of the actor update (every d-th); evaluation's forward over T·E rows (at most
     ``episode_steps`` steps every ``eval_every``; 1000, Gymnasium's MuJoCo limit, when not given); the diagnostics'
-    over T·1000 rows (once per evaluation, the deployed actor's: its first readout only); with Proxy Target, the
-    actor's forward over T·B·K_proxy rows for the proxy's regression targets (every update). T is 1 for DAN and for
-    a first layer whose input is not a spike train. For every critic layer: the C·K critics' three products (the
-    critic loss) and their forward again (the target critics), every update; the three products of the critics the
-    actor loss evaluates (every d-th update).
-    With Proxy Target, the proxy's three products K_proxy times an update and its forward once more (as π')."""
+    over T·1000 rows (once per evaluation, the deployed actor's: its first readout only); the methods' further
+    forward passes of the actor. T is 1 for DAN and for a first layer whose input is not a spike train. For every
+    critic layer: the C·K critics' three products (the critic loss) and their forward again (the target critics),
+    every update; the three products of the critics the actor loss evaluates (every d-th update). Then the products
+    of the methods' own networks."""
     algorithm = algorithm_class(config.algorithm)
     seeds, td3, actor = len(config.seeds), config.td3, config.actor
-    batch, proxy = td3.batch_size, td3.target_actor == "proxy"
+    batch = td3.batch_size
+    changes = methods.MethodProducts()
+    for method in methods.of_run(config):
+        method.products(td3, state_dim, action_dim, changes)
     delayed = 1.0 / algorithm.policy_delay(td3)
     evaluations = 1.0 / config.eval_every
     timesteps = actor.timesteps if actor.network == "spiking" else 1
@@ -52,15 +56,14 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
         for product in products:
             counts[product] = counts.get(product, 0.0) + times
 
-    forward_rows = [(1, 1.0), (config.eval_episodes, (episode_steps or 1000) * evaluations)] + (
-        [(batch * td3.proxy_iterations, 1.0)] if proxy else [])
+    forward_rows = [(1, 1.0), (config.eval_episodes, (episode_steps or 1000) * evaluations), *changes.actor_forwards]
     trained = pairwise(actor.layer_sizes(state_dim, algorithm.readouts * action_dim))
     deployed = pairwise(actor.layer_sizes(state_dim, action_dim))  # the diagnostics' actor: the first readout
     for index, ((d_in, d_out), (_, deployed_out)) in enumerate(zip(trained, deployed, strict=True)):
         steps = timesteps if index > 0 or actor.encoder in SPIKING_ENCODERS else 1
         update = layer_products(seeds, steps * batch, d_in, d_out)
         add(update, delayed)
-        add(update[:1], 0.0 if proxy else 1.0)
+        add(update[:1], changes.next_actions_by_actor)
         for rows, times in forward_rows:
             add(layer_products(seeds, steps * rows, d_in, d_out)[:1], times)
         add(layer_products(seeds, steps * DIAGNOSTIC_STATES, d_in, deployed_out)[:1], evaluations)
@@ -69,11 +72,11 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
         add(every, 1.0)
         add(every[:1], 1.0)
         add(layer_products(algorithm.actor_loss_critics * seeds, batch, d_in, d_out), delayed)
-    if proxy:
-        for d_in, d_out in pairwise([state_dim, *PROXY_HIDDEN, action_dim]):
-            fit = layer_products(seeds, batch, d_in, d_out)
-            add(fit, float(td3.proxy_iterations))
-            add(fit[:1], 1.0)
+    for widths, rows, times, forward_times in changes.networks:
+        for d_in, d_out in pairwise(widths):
+            products = layer_products(seeds, rows, d_in, d_out)
+            add(products, times)
+            add(products[:1], forward_times)
     return counts
 
 

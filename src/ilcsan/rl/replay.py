@@ -48,7 +48,7 @@ class ReplayBuffer:
         return {name: array[seeds, indices] for name, array in self.data.items()}
 
     def sample_states(self, generators: list[np.random.Generator], batch_size: int) -> np.ndarray:
-        """States only (K, B, N), indices drawn as :meth:`sample` draws them (Proxy Target's minibatches)."""
+        """States only (K, B, N), indices drawn as :meth:`sample` draws them (a training method's minibatches)."""
         indices = np.stack([generator.integers(0, self.size, batch_size) for generator in generators])
         return self.data["obs"][np.arange(len(generators))[:, None], indices]
 

@@ -156,7 +156,7 @@ class Trainer:
         losses = None
         if self.step >= td3.update_after and self.step % td3.update_every == 0:
             losses = self._learn()
-        self.agent.after_step(self.step, self.replay, self.normalizer)  # e.g. CaRe-BN's recalibration
+        self.agent.after_step(self.step, self.replay, self.normalizer)  # the methods' work at intervals
         return losses
 
     def _explore(self) -> np.ndarray:
@@ -260,7 +260,7 @@ class Trainer:
             self.rngs[index].bit_generator.state = state["rng"]["numpy"]
             self.evaluations[index] = list(state["evaluations"])
             if not self.environments.restore(index, as_arrays(state["env"]), self.step):
-                self.agent.end_episode(index)  # a new episode (NoisySAN: with a new noise series)
+                self.agent.end_episode(index)  # a new episode (for the exploration method too)
                 self.log(f"note: {self.config.task} cannot restore a running episode; seed {self.config.seeds[index]} "
                          "resumes with a new episode (not bit-identical)")
 

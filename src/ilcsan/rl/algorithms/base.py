@@ -10,10 +10,12 @@ owns its networks, their Adam states, its random streams and its part of a check
 - An update is a pure function of the agent's tensors (parameters, targets, Adam state), run eagerly or as one
   compiled program (:func:`~ilcsan.compute.programs.as_program`); its random numbers are drawn outside, from the
   seeds' own generators, and passed in with the minibatch.
-- The actor's persistent buffers (CaRe-BN's running statistics) are state the update reads and writes like its
-  parameters: every pass of the actor or target actor inside an update takes them from the tensors passed in
+- The actor's persistent buffers (a normalisation's running statistics) are state the update reads and writes like
+  its parameters: every pass of the actor or target actor inside an update takes them from the tensors passed in
   (:meth:`OffPolicyAlgorithm.stateful`), and the actor's normalisation method (:class:`~ilcsan.rl.methods.
   Normalization`, chosen by ``actor.normalization``) writes them in place after the actor's step.
+- The loss terms (:class:`~ilcsan.rl.methods.LossTerm`, each on when its weight is above 0) add to every algorithm's
+  actor loss a term of the pre-tanh output of the pass it evaluates (:meth:`OffPolicyAlgorithm.with_loss_terms`).
 - The actor reads ``readouts`` values per action dimension from its output populations: 1 for the deterministic
   actors of TD3 and DDPG (a = offset + scale · tanh(O)), 2 for SAC's Gaussian (a mean and a log-std). The
   deterministic action — for evaluation, diagnostics and deployment — is always the first readout squashed, so the
@@ -30,13 +32,14 @@ import numpy as np
 import torch
 from torch import nn
 
+from ... import methods
 from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ...compute.programs import CompiledPerShape, as_function, prepare_compilation
-from ...config import ActorConfig, RunConfig, TD3Config
+from ...config import ActorConfig, RunConfig, TrainingProtocol
 from ...runs.checkpoint import load_state, module_state, slice_state
 from ...snn.actor import build_actor
 from ..adam import Adam
-from ..methods import Method, MethodContext, normalization_method
+from ..methods import Method, MethodContext, loss_term_methods, normalization_method
 from .critic import Critics
 
 NOISE_SALT = 3
@@ -57,16 +60,20 @@ class OffPolicyAlgorithm:
 
     @classmethod
     def check(cls, config: RunConfig) -> None:
-        """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with (here: one the
-        actor's normalisation method cannot)."""
-        normalization_method(config.actor.normalization).check(config.task, config.td3)
+        """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with (here: a method
+        chosen for an actor it needs not to be, and the refusals declared by the actor's normalisation and the loss
+        terms, :meth:`~ilcsan.methods.Declared.check`)."""
+        methods.check_methods(config.td3, config.actor.network)
+        for method in (methods.declared("normalization", config.actor.normalization),
+                       *methods.selected(config.td3, ("loss_term",))):
+            method.check(config.task, config.td3)
 
     @classmethod
-    def policy_delay(cls, td3: TD3Config) -> int:
+    def policy_delay(cls, td3: TrainingProtocol) -> int:
         """Critic updates per actor update."""
         return 1
 
-    def __init__(self, actor_config: ActorConfig, td3: TD3Config, state_dim: int, action_dim: int,
+    def __init__(self, actor_config: ActorConfig, td3: TrainingProtocol, state_dim: int, action_dim: int,
                  action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
                  device: str | torch.device = "cpu", compile: bool = False, engine: str = "fast", task: str = "",
                  episode_steps: int | None = None, matmul: MatmulPath = DEFAULT_MATMUL):
@@ -96,6 +103,7 @@ class OffPolicyAlgorithm:
         self._buffer_views: dict[int, list[torch.Tensor]] = {}
         self._state_names: dict[int, list[str]] = {}
         self.normalization = normalization_method(actor_config.normalization)(self.method_context())
+        self.loss_terms = [method(self.method_context()) for method in loss_term_methods(td3)]
         self.actor_buffer_names = list(persistent_buffers(self.actor))
         self.followed_buffers = self.normalization.followed_buffers(self.actor_buffer_names)
         """The actor's buffers a Polyak-averaged target actor follows (by name; the target's are named alike)."""
@@ -119,8 +127,8 @@ class OffPolicyAlgorithm:
                              self.compiled, self.matmul)
 
     def methods(self) -> list[Method]:
-        """The training methods this agent runs (every algorithm: the actor's normalisation)."""
-        return [self.normalization]
+        """The training methods this agent runs (every algorithm: the actor's normalisation and the loss terms)."""
+        return [self.normalization, *self.loss_terms]
 
     @property
     def execution(self) -> str:
@@ -215,6 +223,13 @@ class OffPolicyAlgorithm:
             self._state_names[id(module)] = names
         return as_function(module, [*parameters, *buffers], names)
 
+    def with_loss_terms(self, loss: torch.Tensor, preaction: torch.Tensor | None) -> torch.Tensor:
+        """``loss`` plus each loss term's :meth:`~ilcsan.rl.methods.LossTerm.loss` of ``preaction``, the pre-tanh
+        output (K, B, M) of the pass the algorithm's actor loss evaluated (needed only when a term is on)."""
+        for term in self.loss_terms:
+            loss = loss + term.loss(preaction)
+        return loss
+
     def actor_gradients(self, grads: list[torch.Tensor]) -> list[torch.Tensor]:
         """The actor loss's gradients with those of the :attr:`cancelled_parameters` exactly zero."""
         cancelled = self.cancelled_parameters
@@ -275,7 +290,7 @@ class OffPolicyAlgorithm:
 
 def persistent_buffers(module: nn.Module) -> dict[str, torch.Tensor]:
     """``module``'s persistent buffers by name: its :func:`~ilcsan.runs.checkpoint.module_state` without the
-    parameters (state such as CaRe-BN's running statistics; none for today's other actors)."""
+    parameters (state such as a normalisation's running statistics; none for an actor without normalisation)."""
     parameters = {name for name, _ in module.named_parameters()}
     return {name: tensor for name, tensor in module_state(module).items() if name not in parameters}
 

@@ -1,4 +1,5 @@
-"""SAC (Haarnoja et al., "Soft Actor-Critic Algorithms and Applications", arXiv 1812.05905) for every actor.
+"""SAC (Haarnoja et al., "Soft Actor-Critic Algorithms and Applications", arXiv 1812.05905) for every actor; its
+settings (``entropy_lr``, ``initial_entropy_coefficient``) are declared in :mod:`ilcsan.methods.sac`.
 
 The actor's output populations decode 2M values (:attr:`SAC.readouts` = 2): a mean μ and a log-std
 log σ (clamped to [−20, 2]) per action dimension, for the squashed Gaussian a = offset + scale · tanh(u),
@@ -12,7 +13,8 @@ code). One update of K seeds, every environment step of an update chunk:
 * critics: y = r + γ(1 − d) (min_j Q'_j(s', a') − α log π(a' | s')), a' ~ π(· | s'); one Adam step on
   Σ_j (Q_j(s, a) − y)²;
 * actor: one Adam step on mean_b (α log π(ã | s) − min_j Q_j(s, ã)), ã ~ π(· | s) reparameterised, with the updated
-  critics (plus λ·mean(μ²) with the pre-action penalty λ > 0);
+  critics (plus the loss terms of the pre-tanh mean μ, :meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.
+  with_loss_terms`);
 * entropy coefficient: one Adam step of log α on −mean_b log α (log π(ã | s) + H̄), H̄ = −M the target entropy
   (SAC's automatic tuning), with the same sample ã;
 * targets: θ' ← τθ + (1 − τ)θ'.
@@ -20,7 +22,7 @@ code). One update of K seeds, every environment step of an update chunk:
 α of the update is the one before its step. There is no target actor. Exploration samples from π; evaluation and
 deployment act with the mean, a = offset + scale · tanh(μ), so the deployed actor keeps only the mean's populations
 (:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.deployable_actor`), and its persistent buffers cut alike. The
-actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`, e.g. CaRe-BN) chooses the options of the actor
+actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`) chooses the options of the actor
 loss's pass and writes the actor's persistent buffers after the actor's step; the target values' pass, before it,
 reads them as they were.
 """
@@ -37,8 +39,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ... import methods
 from ...compute.programs import CompiledPerShape, as_function, as_program, module_tensors, value_and_grads
-from ...config import RunConfig, TD3Config
+from ...config import RunConfig
 from ...errors import UserError
 from ...runs.checkpoint import load_state, slice_state
 from ..adam import Adam, adam_
@@ -66,13 +69,13 @@ class SAC(OffPolicyAlgorithm):
 
     @classmethod
     def check(cls, config: RunConfig) -> None:
+        for kind in methods.TD3_SELECTORS:
+            method = methods.declared(kind, getattr(config.td3, kind))
+            if method.name != methods.default(kind):
+                raise UserError(f"{method.option()} is a method for TD3 and DDPG; SAC explores with its own "
+                                f"stochastic actor and has no target actor: drop {method.flag()}, or use "
+                                "--algorithm td3")
         super().check(config)
-        td3, defaults = config.td3, TD3Config()
-        for flag, name, default in (("--exploration", td3.exploration, defaults.exploration),
-                                    ("--target-actor", td3.target_actor, defaults.target_actor)):
-            if name != default:
-                raise UserError(f"{flag} {name} is a method for TD3 and DDPG; SAC explores with its own stochastic "
-                                f"actor and has no target actor: drop {flag}, or use --algorithm td3")
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -135,18 +138,15 @@ class SAC(OffPolicyAlgorithm):
 
     def actor_loss(self, actor: list, buffers: list, critic: list, alpha: torch.Tensor,
                    batch: dict) -> tuple[torch.Tensor, tuple[torch.Tensor, tuple]]:
-        """(Σ_k mean_b (α log π(ã | s) − min_j Q_j(s, ã)) [+ λ mean μ²], (log π(ã | s) (K, B), what the actor's
-        pass recorded)), the pass with the normalisation method's options
+        """(Σ_k mean_b (α log π(ã | s) − min_j Q_j(s, ã)) [+ the loss terms of μ], (log π(ã | s) (K, B), what the
+        actor's pass recorded)), the pass with the normalisation method's options
         (:meth:`~ilcsan.rl.methods.Normalization.loss_options`)."""
         record: list = []
         acting = functools.partial(self.stateful(self.actor, actor, buffers),
                                    **self.normalization.loss_options(record))
         action, log_prob, mean = self.sample(acting, batch["obs"], batch["noise"])
         q_value = as_function(self.critic, critic, self.critic_names)(batch["obs"], action).min(dim=1).values
-        loss = (alpha[:, None] * log_prob - q_value).mean(dim=-1).sum()
-        penalty = self.td3.preaction_penalty
-        if penalty:
-            loss = loss + penalty * (mean ** 2).mean(dim=(-2, -1)).sum()
+        loss = self.with_loss_terms((alpha[:, None] * log_prob - q_value).mean(dim=-1).sum(), mean)
         return loss, (log_prob, tuple(record))
 
     def _update_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:

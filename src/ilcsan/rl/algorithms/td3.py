@@ -6,17 +6,16 @@ One update of K seeds, in TD3's order:
 * the critic step: y = r + γ(1 − d) min_j Q'_j(s', ã), ã = clip(π'(s') + clip(σ̃ε, −c, c), low, high) (target policy
   smoothing), and one Adam step of the critics on Σ_j (Q_j(s, a) − y)² (clipped double-Q);
 * every ``policy_delay``-th update (delayed policy updates) the same, then one Adam step of the actor on
-  −Q_1(s, π(s)) with the *updated* critic (plus what the exploration method adds, e.g. NoisySAN's noise and
-  penalty, whose own parameters step beside the actor's; plus the pre-action penalty λ·mean(O²) when λ > 0), then
-  θ' ← τθ + (1 − τ)θ' for the target critic and, when the target actor follows the actor, for the target actor.
+  −Q_1(s, π(s)) with the *updated* critic (plus what the exploration method adds — π(s) as it evaluates it, terms of
+  its own parameters, which step beside the actor's — and the loss terms of the pre-tanh output O of that π(s)),
+  then θ' ← τθ + (1 − τ)θ' for the target critic and, when the target actor follows the actor, for the target actor.
 
-The actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`, e.g. CaRe-BN) chooses the options of the actor
-loss's pass, writes the actor's persistent buffers after its step and names those the target actor follows with its
-weights.
+The actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`) chooses the options of the actor loss's pass,
+writes the actor's persistent buffers after its step and names those the target actor follows with its weights.
 
 DDPG (:class:`DDPG`): one critic (min over one is itself), no smoothing (ã = π'(s')), the actor and targets at every
-update. How the actor explores and which actor is π' are training methods (:mod:`ilcsan.rl.methods`): TD3's
-Gaussian action noise and Polyak-averaged target by default; NoisySAN and Proxy Target are the others.
+update. How the actor explores and which actor is π' are training methods (:mod:`ilcsan.rl.methods`), TD3's Gaussian
+action noise and Polyak-averaged target by default.
 
 Each variant (critic step; critic and actor step) is one function of the agent's tensors, run eagerly or as one
 compiled program; the networks run through ``torch.func.functional_call`` on tensors passed in
@@ -34,10 +33,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from ... import methods
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
-from ...config import RunConfig, TD3Config
+from ...config import RunConfig, TrainingProtocol
 from ..adam import adam_
-from ..methods import Method, check_methods, exploration_method, target_actor_method
+from ..methods import Method, exploration_method, target_actor_method
 from .base import OffPolicyAlgorithm
 
 
@@ -51,12 +51,11 @@ class TD3(OffPolicyAlgorithm):
     @classmethod
     def check(cls, config: RunConfig) -> None:
         super().check(config)
-        check_methods(config.td3, config.actor.network)
-        exploration_method(config.td3.exploration).check(config.task, config.td3)
-        target_actor_method(config.td3.target_actor).check(config.task, config.td3)
+        for method in methods.selected(config.td3, methods.TD3_SELECTORS):
+            method.check(config.task, config.td3)
 
     @classmethod
-    def policy_delay(cls, td3: TD3Config) -> int:
+    def policy_delay(cls, td3: TrainingProtocol) -> int:
         return td3.policy_delay
 
     def __init__(self, *args, **kwargs):
@@ -95,9 +94,9 @@ class TD3(OffPolicyAlgorithm):
         return self.target_method.extra_samples(replay, normalizer, rngs, self.td3)
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor | None]:
-        """One update (the module docstring). The target actor method runs first (Proxy Target fits its proxy on
-        ``batch["proxy_obs"]``); on an actor step the exploration method adds what the actor loss needs (NoisySAN's
-        noise)."""
+        """One update (the module docstring). The target actor method runs first (e.g. fitting a network of its own on
+        its :meth:`extra_samples`); on an actor step the exploration method adds what the actor loss needs (e.g. noise
+        drawn outside the update program)."""
         self.target_method.before_update(self, batch)
         self.updates += 1
         delayed = self.updates % self.policy_delay(self.td3) == 0
@@ -134,23 +133,21 @@ class TD3(OffPolicyAlgorithm):
     def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
                    critic: Callable | None = None, method_parameters: list | None = None,
                    record: list | None = None) -> torch.Tensor:
-        """Σ_k −mean_b Q_1(s, π(s)) plus the exploration method's terms, π(s) as the method evaluates it
-        (:meth:`~ilcsan.rl.methods.Exploration.actor_action`) with the normalisation method's options
-        (:meth:`~ilcsan.rl.methods.Normalization.loss_options`; ``record`` receives what that pass records);
-        ``method_parameters`` are the exploration method's tensors.
-        With ``td3.preaction_penalty`` λ > 0 it adds Σ_k λ mean_{b,m} O², O the pre-tanh output of that same π(s)."""
+        """Σ_k −mean_b Q_1(s, π(s)) plus the loss terms of the pre-tanh output O of that π(s)
+        (:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.with_loss_terms`) and the exploration method's terms,
+        π(s) as the method evaluates it (:meth:`~ilcsan.rl.methods.Exploration.actor_action`) with the normalisation
+        method's options (:meth:`~ilcsan.rl.methods.Normalization.loss_options`; ``record`` receives what that pass
+        records); ``method_parameters`` are the exploration method's tensors."""
         exploration = self.exploration
         parameters = method_parameters if method_parameters is not None else module_parameters(exploration.module)
         options = self.normalization.loss_options([] if record is None else record)
         actor = functools.partial(actor or self.actor, **options)
-        penalty = self.td3.preaction_penalty
         preactions: list[torch.Tensor] = []
-        if penalty:
+        if self.loss_terms:
             actor = recording_preaction(actor, preactions)
         action = exploration.actor_action(actor, batch, parameters)
         loss = -(critic or self.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
-        if penalty:
-            loss = loss + penalty * (preactions[0] ** 2).mean(dim=(-2, -1)).sum()
+        loss = self.with_loss_terms(loss, preactions[0] if preactions else None)
         extra = exploration.loss_terms(parameters, batch)
         return loss if extra is None else loss + extra
 
@@ -182,7 +179,7 @@ class TD3(OffPolicyAlgorithm):
             self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], tensors["actor_buffers"],
             batch, wrt=(0, 1), has_aux=True)
         adam_(tensors["actor"], self.actor_gradients(grads), *tensors["actor_adam"], lr=lr)
-        if tensors["exploration"]:  # the exploration method's own parameters (NoisySAN's σ_d), at the actor's rate
+        if tensors["exploration"]:  # the exploration method's own parameters, at the actor's rate
             adam_(tensors["exploration"], method_grads, *tensors["exploration_adam"], lr=lr)
         self.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         tau = self.td3.tau
@@ -207,7 +204,7 @@ class TD3(OffPolicyAlgorithm):
 
     # --------------------------------------------------------------------------- checkpoints
     def networks(self) -> tuple[tuple[str, str, int], ...]:
-        return (*super().networks(), ("actor_target", "target actor (Proxy Target: the proxy)", 1))
+        return (*super().networks(), ("actor_target", self.target_method.called, 1))
 
     def seed_state(self, index: int) -> dict[str, Any]:
         """The shared state (:meth:`OffPolicyAlgorithm.seed_state`) and the methods'."""
@@ -233,7 +230,7 @@ class DDPG(TD3):
     smoothing = False
 
     @classmethod
-    def policy_delay(cls, td3: TD3Config) -> int:
+    def policy_delay(cls, td3: TrainingProtocol) -> int:
         return 1
 
 

@@ -1,5 +1,6 @@
-"""The hooks of a training method (:class:`Exploration`, :class:`TargetActor`, :class:`Normalization`) with their
-do-nothing defaults, and what a method is built from (:class:`MethodContext`)."""
+"""The hooks of a training method (:class:`Exploration`, :class:`TargetActor`, :class:`Normalization`,
+:class:`LossTerm`) with their do-nothing defaults, and what a method is built from (:class:`MethodContext`). What a
+method is before it trains — its settings, paper, cost, products and refusals — it declares in :mod:`ilcsan.methods`."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import torch
 from torch import nn
 
 from ...compute.matmul import MatmulPath
-from ...config import ActorConfig, TD3Config
+from ...config import ActorConfig, TrainingProtocol
 
 
 @dataclass(frozen=True)
@@ -21,7 +22,7 @@ class MethodContext:
 
     actor: nn.Module
     actor_config: ActorConfig
-    td3: TD3Config
+    td3: TrainingProtocol
     task: str
     episode_steps: int | None
     seeds: tuple[int, ...]
@@ -35,32 +36,18 @@ class MethodContext:
 
 
 class Method:
-    """Hooks shared by both kinds of method, with their do-nothing defaults.
+    """Hooks shared by every kind of method, with their do-nothing defaults.
 
-    ``spiking_only``: the method needs a spiking actor (DAN refuses it, saying ``spiking_reason``).
-    ``relative_cost(td3)``: the time of a training step with this method over a plain one's, for time estimates.
-    ``check(task, td3)``: raise :class:`~ilcsan.errors.UserError` for a setting the method cannot use (before
-    anything is built). ``module``: the method's own trainable parameters or networks (None: none).
+    ``module``: the method's own trainable parameters or networks (None: none).
     ``seed_state(index)``: seed ``index``'s part of the method's state for a one-seed checkpoint (None: nothing to
     save), and ``load_seed_states(states)`` the inverse for all seeds.
     ``interval``: environment steps between calls of ``at_interval(step, replay, normalizer)`` (0: never), made after
-    the step's updates, with the replay buffer and observation normaliser (CaRe-BN recalibrates its statistics). What
+    the step's updates, with the replay buffer and observation normaliser (e.g. to recalibrate statistics). What
     it draws, it draws with generators of its own, so that the run's random streams are untouched.
     """
 
-    spiking_only = False
-    spiking_reason = ""
-    """Why the method needs a spiking actor, for the refusal's message."""
     module: nn.Module | None = None
     interval = 0
-
-    @classmethod
-    def relative_cost(cls, td3: TD3Config) -> float:
-        return 1.0
-
-    @classmethod
-    def check(cls, task: str, td3: TD3Config) -> None:
-        return None
 
     def seed_state(self, index: int) -> dict[str, Any] | None:
         return None
@@ -111,14 +98,15 @@ class TargetActor(Method):
     """The actor π' in TD3's target values y = r + γ(1 − d) min_j Q'_j(s', clip(π'(s') + ε)).
 
     :attr:`module` is π' itself, whose parameters the update reads (and, with ``soft_update``, moves toward the
-    actor's, θ' ← τθ + (1 − τ)θ', at each delayed step). ``extra_samples(replay, normalizer, rngs, td3)``: arrays
-    added to each minibatch, drawn after its transitions from the same generators. ``before_update(agent, batch)``:
-    runs before each update, outside the update program.
+    actor's, θ' ← τθ + (1 − τ)θ', at each delayed step); :attr:`called` is what errors about its checkpoint call it.
+    ``extra_samples(replay, normalizer, rngs, td3)``: arrays added to each minibatch, drawn after its transitions from
+    the same generators. ``before_update(agent, batch)``: runs before each update, outside the update program.
     """
 
     soft_update = False
+    called = "target actor"
 
-    def extra_samples(self, replay, normalizer, rngs, td3: TD3Config) -> dict[str, np.ndarray]:
+    def extra_samples(self, replay, normalizer, rngs, td3: TrainingProtocol) -> dict[str, np.ndarray]:
         return {}
 
     def before_update(self, agent, batch: dict[str, torch.Tensor]) -> None:
@@ -159,3 +147,17 @@ class Normalization(Method):
 
     def cancelled_parameters(self, names: Sequence[str]) -> list[str]:
         return []
+
+
+class LossTerm(Method):
+    """A term added to the actor's loss, for every algorithm (TD3, DDPG, SAC), on when its weight setting is above 0.
+
+    ``loss(preaction)``: the term, summed over seeds, of the actor's pre-tanh output (K, B, M) in the pass the loss
+    evaluates — O for the deterministic actors of TD3 and DDPG, SAC's mean μ — added after the algorithm's own loss.
+    """
+
+    def __init__(self, context: MethodContext):
+        return None
+
+    def loss(self, preaction: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError

@@ -1,5 +1,6 @@
 """CaRe-BN's training (Xu et al., ICLR 2026), for TD3, DDPG and SAC; the actor's side (the normalisation, the Kalman
-update, the recalibration, the fold) is :mod:`ilcsan.snn.normalization`.
+update, the recalibration, the fold) is :mod:`ilcsan.snn.normalization`, its declaration (paper, refusals)
+:mod:`ilcsan.methods.care_bn`.
 
 * The actor's loss normalises every layer with its minibatch's own statistics μ_B, σ_B² (pooled over the B states
   and the T steps), and its gradient flows through them (``norm_statistics="batch"``).
@@ -40,8 +41,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...config import TD3Config
-from ...errors import UserError
 from ...snn.normalization import RUNNING_BUFFERS, CareBatchNorm, RunningStatistics, kalman_update_
 from .base import MethodContext, Normalization
 
@@ -61,9 +60,6 @@ class CareBN(Normalization):
     """CaRe-BN as a training method (the module docstring); the interval and the recalibration's size are read from
     the module's constants when the method is built."""
 
-    spiking_only = True
-    spiking_reason = "it normalises a spiking actor's synaptic currents"
-
     def __init__(self, context: MethodContext):
         self.actor, self.seeds, self.device = context.actor, context.seeds, context.device
         self.interval = RECALIBRATION_INTERVAL
@@ -71,12 +67,6 @@ class CareBN(Normalization):
         self.norms = [(name, module.momentum) for name, module in self.actor.named_modules()
                       if isinstance(module, CareBatchNorm)]
         """Each normalised layer's module name (its buffers' prefix) and innovation momentum, in layer order."""
-
-    @classmethod
-    def check(cls, task: str, td3: TD3Config) -> None:
-        if td3.batch_size < 2:
-            raise UserError(f"--normalization care-bn estimates its statistics from the minibatch: --batch-size must "
-                            f"be at least 2, got {td3.batch_size}")
 
     def loss_options(self, record: list) -> dict[str, Any]:
         """The batch's own statistics, recorded for :meth:`after_actor_step`."""

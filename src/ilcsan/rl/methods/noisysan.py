@@ -1,4 +1,5 @@
 """NoisySAN exploration (Chen, Peng, Huang, Tian, arXiv 2403.04162): noise inside the spiking actor, not on its action.
+Declared (settings, paper, cost) in :mod:`ilcsan.methods.noisysan`.
 
 While training, the actor acts with additive coloured noise (:func:`ilcsan.snn.noise.coloured_noise`, spectral
 exponent β = ``noisy_beta``) where :class:`~ilcsan.snn.noise.NeuronNoise` says: in the charge and in the spike
@@ -18,7 +19,7 @@ The actor update minimises, per seed,
     −Q_1(s, π(s; ε)) + k · (mean_m σ_d,m)²,    k = max(0, R) / R*,
 
 R the seed's latest evaluation return (0 before the first) and R* the task's reference return
-(:data:`~ilcsan.config.NOISY_RETURN_REFERENCE`): as the actor gets good, the penalty pulls the decoder's noise
+(:data:`~ilcsan.methods.noisysan.RETURN_REFERENCE`): as the actor gets good, the penalty pulls the decoder's noise
 down. The gradient reaches σ_d through ε. Here ε for each minibatch state is a fresh window of T samples of the
 same process — a Gaussian vector with the window covariance of :func:`~ilcsan.snn.noise.window_covariance`, so
 exactly distributed as an exploration window. The authors' script instead replays the noise each transition
@@ -37,37 +38,24 @@ import torch
 from torch import nn
 
 from ...compute.programs import CompiledPerShape
-from ...config import NOISY_RETURN_REFERENCE, TD3Config
-from ...errors import UserError
+from ...config import TrainingProtocol
+from ...methods.noisysan import return_reference
 from ...runs.checkpoint import load_state, slice_state
 from ...snn.noise import NeuronNoise, coloured_noise, fft_length, window_covariance
 from ..adam import Adam
 from .base import Exploration, MethodContext
 
-NOISY_STEP_COST = 2.0
-"""A training step with NoisySAN takes about this many plain steps' time (its noise is drawn and scaled per step)."""
 NOISY_SALT = 5
 """Offset of the noise generators from a seed (the actor, critic, smoothing noise and proxy use others)."""
 DEFAULT_EPISODE_STEPS = 1000
 """Series length (in actions) for a task without a time limit."""
 
 
-def return_reference(task: str, td3: TD3Config) -> float:
-    """R* of the penalty weight: ``--noisy-return-reference`` if given, else NoisySAN's value for a paper task."""
-    if td3.noisy_return_reference is not None:
-        return float(td3.noisy_return_reference)
-    known = {name.lower(): value for name, value in NOISY_RETURN_REFERENCE.items()}
-    if task.lower() in known:
-        return known[task.lower()]
-    raise UserError(f"--exploration noisy on {task} needs --noisy-return-reference R (the return at which the noise "
-                    f"penalty reaches full weight; NoisySAN's values: Hopper 4000, Ant 6000, HalfCheetah 12000)")
-
-
 class NoisyExploration(nn.Module):
     """The noise of K seeds: the learned decoder scales σ_d (K, M), each seed's exploration series, and the draws of
     the update's noise windows."""
 
-    def __init__(self, widths: Sequence[int], action_dim: int, timesteps: int, td3: TD3Config,
+    def __init__(self, widths: Sequence[int], action_dim: int, timesteps: int, td3: TrainingProtocol,
                  reference_return: float, episode_steps: int | None, seeds: Sequence[int], device: torch.device):
         super().__init__()
         self.widths, self.timesteps = tuple(widths), timesteps
@@ -178,9 +166,6 @@ class NoisySAN(Exploration):
     takes an Adam step at the actor's learning rate with every actor step) and the exploring actor, compiled per
     input shape when the run compiles."""
 
-    spiking_only = True
-    spiking_reason = "it puts noise into spiking neurons, and DAN has none"
-
     def __init__(self, context: MethodContext):
         actor = context.actor
         self.module = NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, context.td3,
@@ -189,14 +174,6 @@ class NoisySAN(Exploration):
         self.adam = Adam(self.module, context.actor_config.learning_rate)
         exploring = ExploringActor(actor, self.module)
         self.exploring_fn = CompiledPerShape(exploring) if context.compile else exploring
-
-    @classmethod
-    def relative_cost(cls, td3: TD3Config) -> float:
-        return NOISY_STEP_COST
-
-    @classmethod
-    def check(cls, task: str, td3: TD3Config) -> None:
-        return_reference(task, td3)
 
     @torch.no_grad()
     def explore(self, agent, states: np.ndarray, rngs) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Proxy Target (Xu, Bu, Hao, Ding, Yu, NeurIPS 2025, arXiv 2505.24161): a continuous proxy actor in TD3's
-target values in place of the soft-updated spiking target actor.
+target values in place of the soft-updated spiking target actor. Declared (settings, paper, cost, products) in
+:mod:`ilcsan.methods.proxy_target`.
 
-The proxy π̃ is a ReLU MLP with tanh output (:data:`~ilcsan.config.PROXY_HIDDEN`, built as DAN is), one per
+The proxy π̃ is a ReLU MLP with tanh output (:data:`~ilcsan.methods.proxy_target.PROXY_HIDDEN`, built as DAN is), one per
 seed in stacked weights. Before every TD3 update (every critic update, not only the delayed actor updates, as
 in the public code), it takes K = ``proxy_iterations`` Adam steps (lr ``proxy_lr``), each on its own minibatch
 of replayed states s_1..s_B:
@@ -27,15 +28,14 @@ import torch
 
 from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
-from ...config import PROXY_HIDDEN, TD3Config, actor_config
+from ...config import TrainingProtocol, actor_config
+from ...methods.proxy_target import PROXY_HIDDEN
 from ...snn.actor import DeepActor, build_actor
 from ..adam import Adam, adam_
 from .base import MethodContext, TargetActor
 
 PROXY_SALT = 4
 """Offset of the proxy's initial weights from a seed (the actor and critic use others)."""
-PROXY_COST_PER_ITERATION = 0.6
-"""A training step's time grows by this fraction of a plain step per regression step (``proxy_iterations``)."""
 
 
 def build_proxy(state_dim: int, action_dim: int, action_scale: Sequence[float], action_offset: Sequence[float],
@@ -49,8 +49,7 @@ def build_proxy(state_dim: int, action_dim: int, action_scale: Sequence[float], 
 class ProxyTarget(TargetActor):
     """The proxy actor (:attr:`module`, π') and its Adam: before every update ``fit`` imitates the online actor."""
 
-    spiking_only = True
-    spiking_reason = "it replaces a spiking target actor by a continuous proxy; DAN is continuous already"
+    called = "target actor (Proxy Target: the proxy)"
 
     def __init__(self, context: MethodContext):
         td3 = context.td3
@@ -60,10 +59,6 @@ class ProxyTarget(TargetActor):
         self.adam = Adam(proxy, td3.proxy_lr)
         self.names = self.adam.names
         self.program = as_program(self._regression_steps, module_tensors(proxy), context.compile)
-
-    @classmethod
-    def relative_cost(cls, td3: TD3Config) -> float:
-        return 1.0 + PROXY_COST_PER_ITERATION * td3.proxy_iterations
 
     def loss(self, states: torch.Tensor, goal: torch.Tensor, parameters: Sequence[torch.Tensor] | None = None
              ) -> torch.Tensor:
@@ -94,7 +89,7 @@ class ProxyTarget(TargetActor):
             return self.program(tensors, states.contiguous(), goals.contiguous())
 
     # ------------------------------------------------------------------------------------ hooks
-    def extra_samples(self, replay, normalizer, rngs, td3: TD3Config) -> dict[str, np.ndarray]:
+    def extra_samples(self, replay, normalizer, rngs, td3: TrainingProtocol) -> dict[str, np.ndarray]:
         """A fresh minibatch of replayed states per regression step: ``proxy_obs`` (iterations, K, B, N)."""
         return {"proxy_obs": np.stack([normalizer.normalize(replay.sample_states(rngs, td3.batch_size))
                                        for _ in range(td3.proxy_iterations)])}

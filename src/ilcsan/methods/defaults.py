@@ -1,0 +1,29 @@
+"""The ILC-SAN paper's choices, each its kind's default: TD3's Polyak-averaged target actor and Gaussian action
+noise (Fujimoto et al. 2018), and no normalisation of the synaptic currents. Training: :mod:`ilcsan.rl.methods.td3_own`
+and :class:`ilcsan.rl.methods.Normalization`."""
+
+from __future__ import annotations
+
+from .declaration import Declared
+
+
+class PolyakTarget(Declared):
+    kind, name, title = "target_actor", "polyak", "the Polyak-averaged target actor"
+    paper = "the Polyak-averaged (soft-updated) copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
+    option_help = "polyak, the Polyak-averaged copy of the actor (the paper)"
+    renamed = ("spiking",)
+    training = "ilcsan.rl.methods.td3_own:PolyakTarget"
+
+
+class GaussianActionNoise(Declared):
+    kind, name, title = "exploration", "gaussian", "Gaussian action noise"
+    paper = "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
+    option_help = "TD3's Gaussian action noise (the paper)"
+    training = "ilcsan.rl.methods.td3_own:GaussianActionNoise"
+
+
+class NoNormalization(Declared):
+    kind, name, title = "normalization", "none", "no normalisation"
+    paper = "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)"
+    option_help = "none (the paper)"
+    training = "ilcsan.rl.methods.base:Normalization"
