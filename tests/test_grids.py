@@ -72,6 +72,32 @@ def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> Non
                               "rows": [{"slug": "n", "preset": "ilc-san", "td3": {"noisy_beta": -1.0}}]})
 
 
+def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_follow(tmp_path) -> None:
+    from ilcsan.analysis.reward_tables import _rows_by_configuration
+    from ilcsan.experiments.estimate import list_tables, row_step_cost
+    from ilcsan.experiments.grid import expand_grid
+    from ilcsan.methods import sac, td3
+
+    rows = [{"slug": "td3", "preset": "ilc-san"}, {"slug": "sac", "preset": "ilc-san", "algorithm": "sac"},
+            {"slug": "ddpg", "preset": "dan", "algorithm": "ddpg", "td3": {"preaction_penalty": 0.1}}]
+    spec = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "seeds": 1, "rows": rows})
+    assert [row.algorithm for row in spec.rows] == ["td3", "sac", "ddpg"]
+    assert {run.row.slug: run.config.algorithm for run in expand_grid(spec, tmp_path).runs} == {
+        "td3": "td3", "sac": "sac", "ddpg": "ddpg"}
+    assert [row_step_cost(row) for row in spec.rows] == pytest.approx(
+        [1.0, sac.STEP_COST, td3.DDPG_STEP_COST * 0.6]), "DAN's 0.6 times DDPG's own cost"
+    assert sac.STEP_COST != 1.0 and td3.DDPG_STEP_COST != 1.0
+    listing = list_tables([spec], 100.0, 1)
+    assert re.search(r"sac +sac +preset=ilc-san algorithm=sac\n", listing)
+    assert re.search(r"td3 +td3 +preset=ilc-san\n", listing), "the default algorithm is not spelled out"
+    assert len(_rows_by_configuration(spec.rows)) == 3, "the same actor under two algorithms is two configurations"
+    with pytest.raises(UserError, match="algorithm 'ppo' is not one of: td3, ddpg, sac"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{**rows[0], "algorithm": "ppo"}]})
+    with pytest.raises(UserError, match="--exploration noisy is a method for TD3 and DDPG; SAC explores"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
+                              "rows": [{**rows[1], "td3": {"exploration": "noisy"}}]})
+
+
 @pytest.mark.parametrize("name", PAPER_TABLES)
 def test_row_slugs_and_labels_match_the_transcribed_paper_tables(name: str) -> None:
     spec, published = TABLES[name], paper.REWARD_TABLES[name]

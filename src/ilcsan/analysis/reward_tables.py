@@ -162,7 +162,8 @@ def _rows_by_configuration(rows: Sequence[RowSpec]) -> dict[str, str]:
     keys: dict[str, list[str]] = {}
     for row in rows:
         if row.runnable and row.preset is not None:
-            key = configuration_key(actor_config(row.preset, **row.overrides).to_dict(), dict(row.td3))
+            key = configuration_key(actor_config(row.preset, **row.overrides).to_dict(), dict(row.td3),
+                                    row.algorithm)
             keys.setdefault(key, []).append(row.slug)
     return {key: slugs[0] for key, slugs in keys.items() if len(slugs) == 1}
 

@@ -65,11 +65,11 @@ def steps_per_second_default() -> float:
 
 
 def row_step_cost(row: RowSpec) -> float:
-    """A row's time per environment step relative to plain ILC-SAN's: DAN's is cheaper; the row's training methods
-    multiply it by their declared :meth:`~ilcsan.methods.Declared.relative_cost`."""
-    if row.preset == "dan":
-        return DAN_STEP_COST
-    return methods.relative_cost(td3_config_class()(**row.td3))
+    """A row's time per environment step relative to plain ILC-SAN's (trained by TD3): DAN's is cheaper; the row's
+    algorithm and training methods multiply it by their declared :meth:`~ilcsan.methods.Declared.relative_cost`."""
+    td3 = td3_config_class()(**row.td3)
+    algorithm = methods.declared("algorithm", row.algorithm).relative_cost(td3)
+    return algorithm * (DAN_STEP_COST if row.preset == "dan" else methods.relative_cost(td3))
 
 
 def task_step_cost(task: str) -> float:
@@ -100,7 +100,8 @@ def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) 
 def _row_switches(row: RowSpec) -> str:
     if not row.runnable:
         return "(the paper's numbers only; no code exists)"
-    return " ".join(f"{key}={value}" for key, value in {**row.actor(), **row.td3}.items())
+    chosen = {} if row.algorithm == methods.default("algorithm") else {"algorithm": row.algorithm}
+    return " ".join(f"{key}={value}" for key, value in {**row.actor(), **chosen, **row.td3}.items())
 
 
 def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:
@@ -144,7 +145,7 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
               "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
               "a run's hours = steps × its task's cost × its row's cost / (steps/s) / 3600 (tasks relative to Hopper's "
               "step, float32, as benchmarks/task_cost.py measured them; rows relative to ILC-SAN's step: DAN "
-              f"{DAN_STEP_COST:g}, {_method_costs()}; the methods' costs multiply), "
+              f"{DAN_STEP_COST:g}, {_method_costs()}; the algorithm's and methods' costs multiply), "
               "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "
               "cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])

@@ -136,7 +136,7 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
     for task in tasks:
         for row in rows:
             base = dataclasses.replace(RunConfig(
-                task=task, seeds=(seeds[0],), actor=actor_config(row.preset, **row.overrides),
+                task=task, seeds=(seeds[0],), actor=actor_config(row.preset, **row.overrides), algorithm=row.algorithm,
                 td3=dataclasses.replace(td3, **row.td3), threads=1, label=row.label, table=spec.name, row=row.slug,
                 **{name: getattr(shrunk, name) for name in PROTOCOL}), **settings)
             check_settings(base)

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from .. import methods
 from ..config import (
     ActorConfig,
     actor_config,
@@ -55,7 +56,7 @@ _SLUG = re.compile(r"^[a-z0-9][a-z0-9._+-]*$")
 _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
 
 _TOP_KEYS = tuple(item.name for item in dataclasses.fields(TableSpec))  # name, caption, tasks, rows, protocol
-_ROW_KEYS = ("slug", "label", "preset", "overrides", "td3")
+_ROW_KEYS = ("slug", "label", "preset", "overrides", "algorithm", "td3")
 
 
 def is_task_name(task: str) -> bool:
@@ -70,7 +71,9 @@ def load_grid(path: str | Path) -> TableSpec:
     as ``Hopper`` or Gymnasium ids such as ``Pendulum-v1``) and at least one ``[[rows]]`` are
     required; ``caption``, ``seeds`` (10), ``steps`` (1 000 000), ``eval_every`` (10 000) and
     ``eval_episodes`` (10) are optional. Each row has a unique ``slug``, a ``preset``, an optional
-    ``label`` (defaults to the slug) and optional ``overrides`` of the actor switches::
+    ``label`` (defaults to the slug), optional ``overrides`` of the actor switches, an optional ``algorithm``
+    (``td3``, the default, ``ddpg`` or ``sac``: any registered one) and an optional ``td3`` table of the settings that
+    choose or tune a training method (``target_actor = "proxy"``, ``preaction_penalty = 0.1``, ...)::
 
         name = "intra-small"
         caption = "Intra-layer ablation on two tasks, 3 seeds"
@@ -88,6 +91,11 @@ def load_grid(path: str | Path) -> TableSpec:
         label = "No I_intra, D_mean"
         preset = "ilc-san"
         overrides = { intra = "none", decoder = "mean", alpha_v_li = 0.75 }
+
+        [[rows]]
+        slug = "ilc-san-sac"
+        preset = "ilc-san"
+        algorithm = "sac"
 
     The names of the paper's tables (``perf``, ``decode``, ...) are reserved: the report puts the
     paper's numbers beside a grid of that name. Raises :class:`~ilcsan.errors.UserError` (a
@@ -191,7 +199,18 @@ def _row_from_dict(item: Any, where: str) -> RowSpec:
     if not isinstance(label, str) or not label.strip():
         raise UserError(f"{where}: label must be a non-empty string, got {label!r}")
     overrides, network = _row_actor(preset, item.get("overrides", {}), f"{where}: overrides")
-    return RowSpec(slug=slug, label=label, preset=preset, overrides=overrides, td3=_row_td3(item, network, where))
+    algorithm = _row_algorithm(item, where)
+    return RowSpec(slug=slug, label=label, preset=preset, overrides=overrides, algorithm=algorithm,
+                   td3=_row_td3(item, network, algorithm, where))
+
+
+def _row_algorithm(item: Mapping[str, Any], where: str) -> str:
+    """A row's ``algorithm`` (default ``td3``), one of the registered algorithms (:mod:`ilcsan.methods`)."""
+    algorithm = _typed("algorithm", item.get("algorithm", methods.default("algorithm")), str, where)
+    if algorithm not in methods.registered("algorithm"):
+        raise UserError(f"{where}: algorithm {algorithm!r} is not one of: "
+                        f"{', '.join(methods.registered('algorithm'))}")
+    return algorithm
 
 
 def _row_actor(preset: str, overrides: Any, where: str) -> tuple[dict[str, Any], str]:
@@ -219,16 +238,18 @@ def _typed(key: str, value: Any, kind: type, where: str) -> Any:
     return float(value) if kind is float else value
 
 
-def _row_td3(item: Mapping[str, Any], network: str, where: str) -> dict[str, Any]:
+def _row_td3(item: Mapping[str, Any], network: str, algorithm: str, where: str) -> dict[str, Any]:
     """A row's ``td3`` table (its training method), checked against the declared settings: a row may set the
     training settings that choose or tune a method (:func:`~ilcsan.config.method_settings`); the grid's others are
-    shared."""
+    shared. Its methods must suit the actor's network and the row's algorithm (:meth:`~ilcsan.methods.Declared.check`,
+    which for an algorithm looks only at the training settings)."""
     td3 = item.get("td3", {})
     _check_keys(td3, method_settings(), f"{where}: td3")
     try:
         settings = td3_config_class()(**td3)
         check_settings(settings)
         check_methods(settings, network)
+        methods.declared("algorithm", algorithm).check("", settings)
     except (UserError, TypeError) as error:
         raise UserError(f"{where}: td3: {error}") from None
     return dict(td3)

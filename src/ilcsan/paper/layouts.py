@@ -44,6 +44,8 @@ class RowSpec:
     runnable: bool = True
     td3: Mapping[str, Any] = field(default_factory=dict, hash=False)
     """TD3 settings of this row (training methods such as ``target_actor``), over the grid's own."""
+    algorithm: str = "td3"
+    """The off-policy algorithm that trains this row's actor (``--algorithm``; :mod:`ilcsan.methods`)."""
     published: tuple[str, str] | None = None
     """In a grid that is not a table of the paper: the paper's (table, row) that ran this same actor and method,
     whose published cells a report shows beside this row's (its APR, over other tasks, is not shown)."""

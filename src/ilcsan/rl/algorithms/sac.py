@@ -39,10 +39,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ... import methods
 from ...compute.programs import CompiledPerShape, as_function, as_program, module_tensors, value_and_grads
-from ...config import RunConfig
-from ...errors import UserError
 from ...runs.checkpoint import load_state, slice_state
 from ..adam import Adam, adam_
 from .base import OffPolicyAlgorithm
@@ -66,16 +63,6 @@ class SAC(OffPolicyAlgorithm):
 
     readouts = 2
     actor_loss_critics = 2
-
-    @classmethod
-    def check(cls, config: RunConfig) -> None:
-        for kind in methods.TD3_SELECTORS:
-            method = methods.declared(kind, getattr(config.td3, kind))
-            if method.name != methods.default(kind):
-                raise UserError(f"{method.option()} is a method for TD3 and DDPG; SAC explores with its own "
-                                f"stochastic actor and has no target actor: drop {method.flag()}, or use "
-                                "--algorithm td3")
-        super().check(config)
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
