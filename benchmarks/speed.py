@@ -177,6 +177,12 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
     config = RunConfig(task=task, seeds=seeds, steps=warmup + steps + 1, eval_every=10**9, eval_episodes=1,
                        actor=actor_config(preset), td3=td3, engine=engine, threads=threads, compile=compile_mode,
                        matmul=matmul, algorithm=algorithm)
+    return 1.0 / seconds_per_training_step(config, warmup, steps)[0]
+
+
+def seconds_per_training_step(config: RunConfig, warmup: int, steps: int, then=None):
+    """Seconds per training step of ``config`` (a fresh run in a temporary folder) over ``steps`` steps after
+    ``warmup`` untimed ones, and what ``then(trainer)`` returns after them (None without it)."""
     with tempfile.TemporaryDirectory() as folder:
         trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
         try:
@@ -186,9 +192,9 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
             for _ in range(steps):
                 trainer.train_step()
             elapsed = time.perf_counter() - start
+            return elapsed / steps, then(trainer) if then is not None else None
         finally:
             trainer.close()
-    return steps / elapsed
 
 
 def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush: bool = False) -> float | None:

@@ -24,14 +24,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 import torch
-from speed import cpu_model
+from speed import cpu_model, seconds_per_training_step
 
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.paper.layouts import TABLES
@@ -50,23 +48,16 @@ def measure(task: str, matmul: str, steps: int, warmup: int) -> dict[str, float 
     config = RunConfig(task=task, seeds=(0,), steps=warmup + steps + 1, eval_every=EVAL_EVERY,
                        eval_episodes=EVAL_EPISODES, actor=actor_config("ilc-san"), td3=td3, threads=1, compile="on",
                        matmul=matmul)
-    with tempfile.TemporaryDirectory() as folder:
-        trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
-        try:
-            for _ in range(warmup):
-                trainer.train_step()
-            start = time.perf_counter()
-            for _ in range(steps):
-                trainer.train_step()
-            train = (time.perf_counter() - start) / steps
-            evaluation, limit = evaluation_seconds(trainer)
-            chosen = trainer.matmul["path"]
-            if chosen == "bf16":
-                chosen = f"bf16 on {len(trainer.matmul['bf16_products'])} of {trainer.matmul['products']} shapes"
-        finally:
-            trainer.close()
-    return {"task": task, "matmul": matmul, "train": train, "evaluation": evaluation, "limit": limit,
-            "path": str(chosen)}
+    train, (evaluation, limit, chosen) = seconds_per_training_step(config, warmup, steps, evaluation_and_path)
+    return {"task": task, "matmul": matmul, "train": train, "evaluation": evaluation, "limit": limit, "path": chosen}
+
+
+def evaluation_and_path(trainer: Trainer) -> tuple[float, int, str]:
+    """:func:`evaluation_seconds` and the matmul path the run chose, in words."""
+    chosen = trainer.matmul["path"]
+    if chosen == "bf16":
+        chosen = f"bf16 on {len(trainer.matmul['bf16_products'])} of {trainer.matmul['products']} shapes"
+    return (*evaluation_seconds(trainer), chosen)
 
 
 def evaluation_seconds(trainer: Trainer, lockstep_steps: int = 100, warmup: int = 20) -> tuple[float, int]:
