@@ -197,11 +197,12 @@ def test_load_grid_reads_the_documented_example(tmp_path: Path) -> None:
     assert spec.name == "intra-small"
     assert spec.tasks == ("Hopper", "Walker2d", "Pendulum-v1")
     assert (spec.seeds, spec.steps, spec.eval_every, spec.eval_episodes) == (3, 300_000, 10_000, 10)
-    assert [row.slug for row in spec.rows] == ["ilc-san", "no-intra-mean", "dan-wide"]
+    assert [row.slug for row in spec.rows] == ["ilc-san", "no-intra-mean", "ilc-san-sac", "dan-wide"]
+    assert [row.algorithm for row in spec.rows] == ["td3", "td3", "sac", "td3"]
     assert spec.row("no-intra-mean").actor() == {
         "preset": "ilc-san", "intra": "none", "decoder": "mean", "alpha_v_li": 0.75}
     assert spec.row("dan-wide").label == "dan-wide"  # label defaults to the slug
-    assert len(spec.runs()) == 3 * 3 * 3
+    assert len(spec.runs()) == 3 * 4 * 3
 
 
 def _replace(old: str, new: str) -> str:
