@@ -194,21 +194,16 @@ def test_estimate_hours_runs_in_waves_of_cores(monkeypatch):
 
 
 def test_a_run_costs_its_task_factor_times_its_row_factor(monkeypatch):
-    """perf on 8 cores with Humanoid 6 times and Ant 2 times Hopper's step, every other task 1: per task 70 runs (7
-    rows × 10 seeds), 60 spiking (cost 1 × task) and 10 DAN (0.6 × task). Longest first: the 60 + 10 Humanoid runs (6
-    and 3.6) load the 8 cores to 6·60/8 + 3.6·10/8 = 49.5 in total; the busiest core's load is what the greedy deal
-    gives, checked here against the deal done by hand in a few lines."""
+    """intra (Ant, HalfCheetah, Hopper, Walker2d × 8 spiking rows × 10 seeds, 1e6 steps) at 100 steps/s with Ant 3
+    times Hopper's step and the others 1: a Hopper-like run takes 1e4 s. On 320 cores each run has its own core and
+    an Ant run decides (3e4 s); on one core all 80 runs per task add up: 80 · (3 + 1 + 1 + 1) · 1e4 s."""
     from ilcsan.experiments import estimate
 
-    monkeypatch.setattr(estimate, "TASK_STEP_COST", {"Humanoid": 6.0, "Ant": 2.0})
-    assert estimate.task_step_cost("Humanoid") == 6.0 and estimate.task_step_cost("MyTask") == 1.0
-    costs = sorted([6.0] * 60 + [3.6] * 10 + [2.0] * 60 + [1.2] * 10 + [1.0] * 360 + [0.6] * 60, reverse=True)
-    loads = [0.0] * 8
-    for cost in costs:
-        loads[loads.index(min(loads))] += cost
-    assert estimate_hours(TABLES["perf"], 100.0, 8) == pytest.approx(max(loads) * 1e4 / 3600)
-    assert max(loads) > sum(costs) / 8 - 1e-9 and max(loads) < sum(costs) / 8 + 6.0
-    assert "Humanoid 6, " in list_tables([TABLES["perf"]], 100.0, 8)
+    monkeypatch.setattr(estimate, "TASK_STEP_COST", {"Ant": 3.0})
+    assert estimate.task_step_cost("Ant") == 3.0 and estimate.task_step_cost("MyTask") == 1.0
+    assert estimate_hours("intra", 100.0, 320) == pytest.approx(3 * 1e4 / 3600)
+    assert estimate_hours("intra", 100.0, 1) == pytest.approx(80 * 6 * 1e4 / 3600)
+    assert "Ant 3, HalfCheetah 1, Hopper 1, Walker2d 1" in list_tables([TABLES["intra"]], 100.0, 1)
 
 
 def test_each_row_of_a_grid_costs_what_its_method_measured():

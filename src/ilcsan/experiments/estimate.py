@@ -28,7 +28,7 @@ TASK_STEP_COST: dict[str, float] = {
 }
 """Time per environment step of one ILC-SAN seed on a task relative to Hopper's, at the paper's protocol (float32, one
 torch thread, evaluations included with episodes at their full length), as ``benchmarks/task_cost.py`` measured it
-(``benchmarks/RESULTS.md``: the median of three runs, rounded; the runs spread by up to ±0.3, HumanoidStandup ±1.2).
+(``benchmarks/RESULTS.md``: the median of three runs, rounded; the runs spread by up to ±0.4, HumanoidStandup ±1.2).
 Ratios hold across machines far better than steps/s do; the wide input populations of Ant (1 110 neurons) and Humanoid
 (3 760) make their products the dearest. A task not listed (a user's own) is assumed to cost what Hopper does."""
 
