@@ -14,8 +14,8 @@ from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.methods.proxy_target import PROXY_HIDDEN
 from ilcsan.rl.algorithms import TD3
+from ilcsan.rl.algorithms.td3 import PolyakTarget
 from ilcsan.rl.methods.proxy_target import ProxyTarget
-from ilcsan.rl.methods.td3_own import PolyakTarget
 from ilcsan.rl.training import train
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
