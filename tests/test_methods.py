@@ -124,7 +124,7 @@ def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tm
     """One declaration and one registration, and every part of the package that lists methods lists it."""
     from ilcsan.analysis.collect import configuration_key
     from ilcsan.cli import build_parser
-    from ilcsan.cli.options import build_run_config
+    from ilcsan.cli.train import build_run_config
     from ilcsan.experiments.estimate import list_tables, row_step_cost
     from ilcsan.experiments.grid_files import load_grid
     from ilcsan.paper.layouts import TABLES

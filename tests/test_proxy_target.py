@@ -125,7 +125,7 @@ def test_the_proxy_is_refused_for_dan(tmp_path):
 
 def test_the_options_parse_and_are_saved_in_config_json(tmp_path):
     from ilcsan.cli import build_parser
-    from ilcsan.cli.options import build_run_config
+    from ilcsan.cli.train import build_run_config
 
     args = build_parser().parse_args(["train", "--task", "Pendulum-v1", "--target-actor", "proxy",
                                       "--proxy-iterations", "1", "--proxy-lr", "3e-3"])
