@@ -20,10 +20,11 @@ action; π' as a copy of the actor that follows it); every other hook the update
 (:mod:`ilcsan.rl.methods.base`): the actor loss evaluates the actor's own π(s), nothing is added to the minibatch or
 the loss, nothing runs before an update or at intervals.
 
-Each variant (critic step; critic and actor step) is one function of the agent's tensors, run eagerly or as one
-compiled program; the networks run through ``torch.func.functional_call`` on tensors passed in
-(:func:`~ilcsan.compute.programs.as_function`), the gradients come from :func:`~ilcsan.compute.programs.
-value_and_grads`, Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the agent's own tensors.
+Each variant (critic step; critic and actor step) is one function of the agent's tensors, run eagerly, or as one
+compiled program when the run compiles (:func:`~ilcsan.compute.programs.as_program`: the same function either way);
+the networks run through ``torch.func.functional_call`` on tensors passed in (:func:`~ilcsan.compute.programs.
+as_function`), the gradients and the loss are ``torch.func.grad_and_value``'s (:func:`~ilcsan.compute.programs.
+value_and_grads`), Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the agent's own tensors.
 """
 
 from __future__ import annotations
