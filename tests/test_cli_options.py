@@ -61,16 +61,6 @@ def test_no_switches_parse_to_the_config_defaults():
     assert build_run_config(args) == RunConfig()
 
 
-def test_trains_options_imported_from_their_old_module_still_work_and_warn():
-    import ilcsan.cli.options as options
-    import ilcsan.cli.train as train
-
-    for name in options.MOVED_TO_TRAIN:
-        with pytest.warns(DeprecationWarning, match=f"{name} is deprecated: import it from ilcsan.cli.train"):
-            assert getattr(options, name) is getattr(train, name)
-    with pytest.raises(AttributeError):
-        options.no_such_name  # noqa: B018
-
 
 def _sample_value(field) -> tuple[str, object]:
     """A command-line value other than the field's default, and what it should become."""

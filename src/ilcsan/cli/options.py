@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import warnings
 from typing import Any
 
 from ..arguments import int_at_least, positive_int
@@ -136,19 +135,3 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
 def choices_help(choices: dict[str, str], default: str) -> str:
     """The help of an option with declared choices: ``a (what a; default) | b (what b)``."""
     return " | ".join(f"{name} ({what}{'; default' if name == default else ''})" for name, what in choices.items())
-
-
-MOVED_TO_TRAIN = ("RUN_SETTINGS", "PROTOCOL_SETTINGS", "td3_settings", "build_run_config", "liked_run_config",
-                  "like_defaults")
-"""Names of ``train``'s options that moved to :mod:`ilcsan.cli.train`; imported from here, they still work, with a
-DeprecationWarning."""
-
-
-def __getattr__(name: str) -> Any:
-    if name in MOVED_TO_TRAIN:
-        from . import train
-
-        warnings.warn(f"ilcsan.cli.options.{name} is deprecated: import it from ilcsan.cli.train", DeprecationWarning,
-                      stacklevel=2)
-        return getattr(train, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
