@@ -9,7 +9,8 @@ import sys
 import pytest
 
 from ilcsan.cli import build_parser, main
-from ilcsan.cli.options import RUN_SETTINGS, actor_switches, build_run_config, td3_settings
+from ilcsan.cli.options import actor_switches
+from ilcsan.cli.train import RUN_SETTINGS, build_run_config, td3_settings
 from ilcsan.config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of
 from ilcsan.errors import UserError
 from ilcsan.settings import help_text
@@ -58,6 +59,7 @@ def test_run_and_td3_options_show_the_configs_help_and_default(config_class, nam
 def test_no_switches_parse_to_the_config_defaults():
     args = PARSER.parse_args(["train"])
     assert build_run_config(args) == RunConfig()
+
 
 
 def _sample_value(field) -> tuple[str, object]:

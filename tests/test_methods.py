@@ -124,7 +124,7 @@ def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tm
     """One declaration and one registration, and every part of the package that lists methods lists it."""
     from ilcsan.analysis.collect import configuration_key
     from ilcsan.cli import build_parser
-    from ilcsan.cli.options import build_run_config
+    from ilcsan.cli.train import build_run_config
     from ilcsan.experiments.estimate import list_tables, row_step_cost
     from ilcsan.experiments.grid_files import load_grid
     from ilcsan.paper.layouts import TABLES
@@ -189,3 +189,19 @@ def test_a_run_uses_the_registered_method(toy, tmp_path, monkeypatch):
     config = tiny_run(steps=200, eval_every=200, td3=toy_td3(start_steps=150))
     train(config, tmp_path / "run", progress=False, log=lambda *_: None)
     assert len(calls) == 200 - 150  # every step after the random phase explores through the method
+
+
+def test_td3s_own_methods_live_beside_td3_and_their_old_path_warns(monkeypatch):
+    """The paper's exploration and target actor are TD3's hooks in :mod:`ilcsan.rl.algorithms.td3`; scripts that
+    import them from their old module get the same classes and a DeprecationWarning."""
+    import importlib
+    import sys
+
+    from ilcsan.rl.algorithms import td3
+
+    assert methods.declared("exploration", "gaussian").training_class() is td3.GaussianActionNoise
+    assert methods.declared("target_actor", "polyak").training_class() is td3.PolyakTarget
+    monkeypatch.delitem(sys.modules, "ilcsan.rl.methods.td3_own", raising=False)
+    with pytest.warns(DeprecationWarning, match="ilcsan.rl.algorithms.td3"):
+        old = importlib.import_module("ilcsan.rl.methods.td3_own")
+    assert (old.GaussianActionNoise, old.PolyakTarget) == (td3.GaussianActionNoise, td3.PolyakTarget)

@@ -206,7 +206,7 @@ def test_noisy_exploration_is_refused_for_dan_and_needs_a_reference_return_off_t
 
 def test_the_options_parse_are_saved_in_config_json_and_bad_values_are_one_line(tmp_path, capsys):
     from ilcsan.cli import build_parser, main
-    from ilcsan.cli.options import build_run_config
+    from ilcsan.cli.train import build_run_config
 
     args = build_parser().parse_args(["train", "--task", "Hopper", "--exploration", "noisy", "--noisy-sigma", "0.3",
                                       "--noisy-beta", "2", "--noisy-return-reference", "3000"])

@@ -14,8 +14,8 @@ from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.methods.proxy_target import PROXY_HIDDEN
 from ilcsan.rl.algorithms import TD3
+from ilcsan.rl.algorithms.td3 import PolyakTarget
 from ilcsan.rl.methods.proxy_target import ProxyTarget
-from ilcsan.rl.methods.td3_own import PolyakTarget
 from ilcsan.rl.training import train
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
@@ -125,7 +125,7 @@ def test_the_proxy_is_refused_for_dan(tmp_path):
 
 def test_the_options_parse_and_are_saved_in_config_json(tmp_path):
     from ilcsan.cli import build_parser
-    from ilcsan.cli.options import build_run_config
+    from ilcsan.cli.train import build_run_config
 
     args = build_parser().parse_args(["train", "--task", "Pendulum-v1", "--target-actor", "proxy",
                                       "--proxy-iterations", "1", "--proxy-lr", "3e-3"])

@@ -17,14 +17,8 @@ from ..deploy.lava import run_options
 from ..errors import TrainingDiverged, UserError
 from ..paper.layouts import SEEDS, TABLES
 from . import commands, grid_commands
-from .options import (
-    _add_actor_switches,
-    _add_run_options,
-    add_setting,
-    choices_help,
-    like_defaults,
-    liked_run_config,
-)
+from .options import add_setting, choices_help
+from .train import add_train_command, like_defaults, liked_run_config
 
 EXIT_USER_ERROR = 2
 EXIT_DIVERGED = 3
@@ -45,35 +39,17 @@ class _Parser(argparse.ArgumentParser):
 
 # ------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    """The ``ilcsan`` parser: one sub-command per ``_add_*_command`` below."""
+    """The ``ilcsan`` parser: one sub-command per ``add_*_command``, ``train``'s in :mod:`ilcsan.cli.train`, the
+    others' below."""
     parser = _Parser(prog="ilcsan", description="Fully spiking actor networks (ILC-SAN) for continuous control.")
     parser.add_argument("--version", action="version", version=f"ilcsan {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for add_command in (_add_train_command, _add_evaluate_command, _add_export_command, _add_reproduce_command,
+    for add_command in (add_train_command, _add_evaluate_command, _add_export_command, _add_reproduce_command,
                         _add_report_command, _add_energy_command, _add_actors_command, _add_tasks_command,
                         _add_demo_command, _add_lava_command):
         add_command(subparsers)
     parser.commands = subparsers.choices
     return parser
-
-
-def _add_train_command(subparsers) -> None:
-    """``ilcsan train``: the task, the actor switches and the run and training options, all from the config."""
-    train = subparsers.add_parser("train", help="train an actor (TD3, DDPG or SAC)",
-                                description="Train an actor with a deep critic: TD3 (the paper's), DDPG or SAC.")
-    train.add_argument("--task", default=RunConfig.task,
-                       help=f"paper short name (see `ilcsan tasks`), a Gymnasium id, or your own task as "
-                            f"module:id (its module is imported first; default: {RunConfig.task})")
-    _add_actor_switches(train)
-    _add_run_options(train)
-    train.add_argument("--out", help="run directory (default runs/<task>-<actor>-s<seeds>)")
-    train.add_argument("--resume", action="store_true",
-                       help="continue the run in --out from its last checkpoint (a larger --steps extends it)")
-    train.add_argument("--like", metavar="RUN", help="start from every setting of the run in RUN (task, actor, TD3 "
-                       "and run options, --steps, --label; not its seeds): each flag given here changes that one")
-    train.add_argument("--label", help="row label for reports (default: the preset)")
-    train.add_argument("--no-progress", action="store_true", help="no progress bar (one line per evaluation)")
-    train.set_defaults(handler=commands.cmd_train)
 
 
 def _add_evaluate_command(subparsers) -> None:

@@ -1,4 +1,5 @@
-"""The training-side commands: train, evaluate, demo, export, and the listings (actors, tasks)."""
+"""The commands about one actor besides ``train`` (:mod:`ilcsan.cli.train`): evaluate, demo, export, lava, and the
+listings (actors, tasks)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 from .. import methods
 from ..config import PRESET_SUMMARIES, RunConfig, actor_config, td3_config_class
-from .options import build_run_config
+from .train import print_results
 
 
 def _print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
@@ -21,54 +22,6 @@ def _print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
 
 
 # ----------------------------------------------------------------------------------- commands
-def cmd_train(args: argparse.Namespace) -> int:
-    from ..rl.tasks import task_file_name
-    from ..rl.training import train
-
-    config = build_run_config(args)
-    if args.like:
-        _note_a_kept_label(config, args.like_config, args.like)
-    seeds = args.seeds.replace(",", "_")
-    out = Path(args.out or f"runs/{task_file_name(config.task)}-{config.actor.preset}-s{seeds}")
-    results = train(config, out, resume=args.resume, progress=None if not args.no_progress else False)
-    _print_results(results, out)
-    return 0
-
-
-def _print_results(results: list[dict[str, Any]], out: Path) -> None:
-    import numpy as np
-
-    bests = [r["best_return"] for r in results if r["best_return"] is not None]
-    if not bests:
-        print(f"no evaluation was made; results are in {out}")
-        return
-    if len(results) == 1:
-        r = results[0]
-        print(f"best average evaluation return {r['best_return']:.1f} at step {r['best_step']} "
-              f"(seed {r['seed']}, {r['steps_done']} steps); results in {out}")
-    else:
-        from ..analysis.reward_tables import seed_std
-
-        spread = seed_std(bests)
-        stat = f"{np.mean(bests):.1f}" + (f" ± {spread:.1f}" if spread is not None else "")
-        print(f"best average evaluation return {stat} over {len(bests)} seeds (sample std) "
-              f"({', '.join(f'{b:.1f}' for b in bests)}); results in {out}/seed*")
-
-
-def _note_a_kept_label(config: RunConfig, like: RunConfig, path: str) -> None:
-    """``train --like``: say so when the run keeps the liked run's label but not its actor or training method, so
-    that a report does not put the two in one row unknowingly."""
-    from ..analysis.collect import configuration_key
-
-    def key(run: RunConfig) -> str:
-        return configuration_key(run.actor.to_dict(), run.td3.to_dict(), run.algorithm)
-
-    custom = like.label not in (None, like.actor.preset)  # a preset's own name is every such run's default label
-    if custom and config.label == like.label and key(config) != key(like):
-        print(f"note: this run keeps the label {config.label!r} of {path}, whose actor or training method differs; "
-              "give --label to report it in a row of its own")
-
-
 def cmd_evaluate(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -196,7 +149,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..runs.directory import RunDirectory
 
     results = train(config, out, resume=RunDirectory(out).holds_run(), progress=None)
-    _print_results(results, out)
+    print_results(results, out)
     from ..analysis.report import collect_runs, plot_curves
 
     runs = collect_runs(out)

@@ -1,19 +1,18 @@
-"""Command-line options shared by the commands: argument types, seed lists, and the actor, run and TD3
-switches, generated from the fields of :mod:`ilcsan.config` (flag, type, default, choices and help)."""
+"""Command-line options shared by the commands: argument types, seed lists, an option generated from a field of
+:mod:`ilcsan.config` (flag, type, default, choices and help) and the actor switches. The options of ``train`` and the
+run configuration they make are :mod:`ilcsan.cli.train`'s."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import math
-import sys
-from pathlib import Path
 from typing import Any
 
 from ..arguments import int_at_least, positive_int
-from ..config import ActorConfig, RunConfig, actor_config, method_settings, td3_config_class
+from ..config import ActorConfig
 from ..errors import UserError
-from ..settings import check_settings, flag_of, help_text, renamed_note, setting_type
+from ..settings import flag_of, help_text, setting_type
 
 # ------------------------------------------------------------------------------------ helpers
 MAX_SEEDS = 1000
@@ -121,7 +120,7 @@ def actor_switches() -> list[tuple[str, tuple[str, ...], dict[str, Any]]]:
     return switches
 
 
-def _add_actor_switches(parser: argparse.ArgumentParser) -> None:
+def add_actor_switches(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("actor (a preset, then any switch overrides it; see `ilcsan actors`)")
     for flag, aliases, options in actor_switches():
         group.add_argument(flag, *aliases, **options)
@@ -131,107 +130,6 @@ def actor_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The actor switches given on the command line (None: the preset's value)."""
     return {options["dest"]: getattr(args, options["dest"], None) for _, _, options in actor_switches()
             if options["dest"] != "preset"}
-
-
-RUN_SETTINGS = ("algorithm", "contact_forces", "eval_every", "eval_episodes", "device", "engine", "threads", "compile",
-                "matmul", "checkpoint_minutes")
-"""The :class:`~ilcsan.config.RunConfig` fields ``train`` offers besides the task, seeds and steps."""
-PROTOCOL_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size")
-"""The fields of the :class:`~ilcsan.config.TrainingProtocol` that ``train`` offers."""
-
-
-def td3_settings() -> tuple[str, ...]:
-    """The training settings ``train`` offers: :data:`PROTOCOL_SETTINGS` and every method's and algorithm's
-    (:func:`~ilcsan.config.method_settings`)."""
-    return PROTOCOL_SETTINGS + method_settings()
-
-
-def _add_run_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--seeds", "--seed", dest="seeds", default="0",
-                        help="seed or seeds: 0, 0-9 or 0,2,5; several seeds train together in one process")
-    add_setting(parser, RunConfig, "steps")
-    for name in RUN_SETTINGS:
-        add_setting(parser, RunConfig, name)
-    for name in td3_settings():
-        add_setting(parser, td3_config_class(), name)
-
-
-def build_run_config(args: argparse.Namespace, task: str | None = None):
-    """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments; with ``--like``, TD3 settings that have
-    no flag (γ, τ, the critic, ...) are the liked run's."""
-    like = getattr(args, "like_config", None)
-    td3 = {name: getattr(args, name) for name in td3_settings()}
-    note = renamed_note(td3_config_class(), td3)
-    if note:
-        print(note, file=sys.stderr)
-    config = RunConfig(
-        task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
-        actor=actor_config(args.preset, **_actor_settings(args, like)),
-        td3=dataclasses.replace(like.td3, **td3) if like is not None else td3_config_class()(**td3),
-        label=getattr(args, "label", None), **{name: getattr(args, name) for name in RUN_SETTINGS},
-    )
-    check_settings(config)
-    check_settings(config.td3)
-    return config
-
-
-# ------------------------------------------------------------------------------- train --like RUN
-def _actor_settings(args: argparse.Namespace, like: RunConfig | None) -> dict[str, Any]:
-    """The actor switches given; with ``--like``, a field offered through several switches (``hidden``) that none
-    of them changed is the liked run's own value, which those switches may not express (widths 256, 128)."""
-    settings = actor_overrides(args)
-    if like is None:
-        return settings
-    for item in dataclasses.fields(ActorConfig):
-        liked = getattr(like.actor, item.name)
-        parts = {part.flag.replace("-", "_"): part.default_of(liked) for part in item.metadata["switches"]}
-        if parts and all(settings.get(name) == value for name, value in parts.items()):
-            for name in parts:
-                settings.pop(name)
-            settings[item.name] = liked
-    return settings
-
-
-def liked_run_config(path: str) -> RunConfig:
-    """The settings of the run at ``path`` (a run folder, a folder of stacked seeds, which share their settings, or
-    a run's config.json), for ``train --like``; one-line UserError when there is none."""
-    from ..runs.directory import CONFIG, RunDirectory, RunFileError
-
-    if "\0" in path:
-        raise UserError(f"--like {path!r} is not a path")
-    given = Path(path)
-    try:
-        if given.is_file() and given.name != CONFIG:
-            raise UserError(f"--like {path}: pass a run folder or its {CONFIG}")
-        folder = given.parent if given.is_file() else given
-        if given.is_dir() and not RunDirectory(given).file(CONFIG).is_file():
-            seeds = sorted(p for p in given.glob("seed*") if RunDirectory(p).file(CONFIG).is_file())
-            folder = seeds[0] if seeds else given
-        return RunConfig.from_dict(RunDirectory(folder).config_object())
-    except RunFileError as error:
-        raise UserError(f"--like {path}: {error}; pass a run folder (it holds config.json)") from None
-    except UserError:
-        raise
-    except (KeyError, TypeError, ValueError) as error:
-        raise UserError(f"--like {path}: its config.json is not an ilcsan run's ({error})") from None
-
-
-def like_defaults(config: RunConfig) -> dict[str, Any]:
-    """``train``'s option values that give ``config``: defaults for ``--like``, which the flags given override. The
-    seeds are not taken (give --seeds), nor a grid's table and row: the new run is a ``train`` run, which
-    ``ilcsan report`` places by its label, or with ``--table`` by its settings."""
-    values: dict[str, Any] = {"task": config.task, "steps": config.steps, "label": config.label,
-                              "preset": config.actor.preset}
-    values |= {name: getattr(config, name) for name in RUN_SETTINGS}  # contact_forces None (the task's default)
-    # stays None, so that --like with another --task takes that task's default
-    values |= {name: getattr(config.td3, name) for name in td3_settings()}
-    for item in dataclasses.fields(ActorConfig):
-        value = getattr(config.actor, item.name)
-        for part in item.metadata["switches"]:
-            values[part.flag.replace("-", "_")] = part.default_of(value)
-        if not item.metadata["switches"] and item.name != "preset":
-            values[item.name] = value
-    return values
 
 
 def choices_help(choices: dict[str, str], default: str) -> str:

@@ -1,6 +1,6 @@
 """The ILC-SAN paper's choices, each its kind's default: TD3's Polyak-averaged target actor and Gaussian action
-noise (Fujimoto et al. 2018), and no normalisation of the synaptic currents. Training: :mod:`ilcsan.rl.methods.td3_own`
-and :class:`ilcsan.rl.methods.Normalization`."""
+noise (Fujimoto et al. 2018), and no normalisation of the synaptic currents. Training: :mod:`ilcsan.rl.algorithms.td3`
+(TD3's own methods, beside TD3) and :class:`ilcsan.rl.methods.Normalization`."""
 
 from __future__ import annotations
 
@@ -12,14 +12,14 @@ class PolyakTarget(Declared):
     paper = "the Polyak-averaged (soft-updated) copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
     option_help = "polyak, the Polyak-averaged copy of the actor (the paper)"
     renamed = ("spiking",)
-    training = "ilcsan.rl.methods.td3_own:PolyakTarget"
+    training = "ilcsan.rl.algorithms.td3:PolyakTarget"
 
 
 class GaussianActionNoise(Declared):
     kind, name, title = "exploration", "gaussian", "Gaussian action noise"
     paper = "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
     option_help = "TD3's Gaussian action noise (the paper)"
-    training = "ilcsan.rl.methods.td3_own:GaussianActionNoise"
+    training = "ilcsan.rl.algorithms.td3:GaussianActionNoise"
 
 
 class NoNormalization(Declared):

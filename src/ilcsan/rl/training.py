@@ -142,8 +142,17 @@ class Trainer:
         return minutes > 0 and self._clock.since_checkpoint() >= 60.0 * minutes
 
     def train_step(self) -> dict[str, float] | None:
-        """One environment step per seed: act, step, store, the updates when they are due, then what the training
-        methods do every so many steps (:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.after_step`)."""
+        """One environment step per seed: act, step, store, the updates when they are due (their mean losses are
+        returned, else None), then what the training methods do every so many steps
+        (:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.after_step`; the paper's methods do nothing there).
+
+        What the parts called here do, which is all the step needs of them: ``environments.step`` steps each seed's
+        environment once with its action and returns the transitions (s, a, r, s', terminal) and the seeds whose
+        episode ended, which the loop resets; ``terminal`` is 1 only where the task terminated (a time limit's
+        truncation ends an episode, but the target values still bootstrap from its s'). ``replay.add`` appends each
+        seed's transition to that seed's rows, first in first out beyond ``min(replay_size, steps)`` rows.
+        ``normalizer.update`` adds observations to each seed's running mean and variance: every s', and a new
+        episode's first state, that seed's only."""
         td3 = self.config.td3
         transition, finished = self.environments.step(self._explore(), step=self.step + 1)
         self.replay.add(*transition)
@@ -321,7 +330,9 @@ class TrainingClock:
 
 def sample_minibatch(replay: ReplayBuffer, normalizer: RunningNormalizer, rngs: list[np.random.Generator],
                      td3) -> dict[str, np.ndarray]:
-    """One minibatch per seed with normalised states."""
+    """``batch_size`` transitions per seed, (K, B, ·), drawn uniformly with replacement from that seed's replay rows
+    with its own generator; s and s' normalised with the seeds' current statistics (z-scores clipped to ±3), as the
+    actor sees states when it acts."""
     arrays = replay.sample(rngs, td3.batch_size)
     arrays["obs"] = normalizer.normalize(arrays["obs"])
     arrays["next_obs"] = normalizer.normalize(arrays["next_obs"])

@@ -13,9 +13,11 @@ owns its networks, their Adam states, its random streams and its part of a check
 - The actor's persistent buffers (a normalisation's running statistics) are state the update reads and writes like
   its parameters: every pass of the actor or target actor inside an update takes them from the tensors passed in
   (:meth:`OffPolicyAlgorithm.stateful`), and the actor's normalisation method (:class:`~ilcsan.rl.methods.
-  Normalization`, chosen by ``actor.normalization``) writes them in place after the actor's step.
-- The loss terms (:class:`~ilcsan.rl.methods.LossTerm`, each on when its weight is above 0) add to every algorithm's
-  actor loss a term of the pre-tanh output of the pass it evaluates (:meth:`OffPolicyAlgorithm.with_loss_terms`).
+  Normalization`, chosen by ``actor.normalization``) writes them in place after the actor's step. The paper's,
+  ``none``, has no buffers and does nothing.
+- The loss terms (:class:`~ilcsan.rl.methods.LossTerm`, each on when its weight is above 0; none in the paper) add to
+  every algorithm's actor loss a term of the pre-tanh output of the pass it evaluates
+  (:meth:`OffPolicyAlgorithm.with_loss_terms`).
 - The actor reads ``readouts`` values per action dimension from its output populations: 1 for the deterministic
   actors of TD3 and DDPG (a = offset + scale · tanh(O)), 2 for SAC's Gaussian (a mean and a log-std). The
   deterministic action — for evaluation, diagnostics and deployment — is always the first readout squashed, so the

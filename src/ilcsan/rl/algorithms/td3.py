@@ -14,17 +14,22 @@ The actor's normalisation (:class:`~ilcsan.rl.methods.Normalization`) chooses th
 writes the actor's persistent buffers after its step and names those the target actor follows with its weights.
 
 DDPG (:class:`DDPG`): one critic (min over one is itself), no smoothing (ã = π'(s')), the actor and targets at every
-update. How the actor explores and which actor is π' are training methods (:mod:`ilcsan.rl.methods`), TD3's Gaussian
-action noise and Polyak-averaged target by default.
+update. How the actor explores and which actor is π' are training methods (:mod:`ilcsan.rl.methods`); TD3's own, the
+paper's, are here: :class:`GaussianActionNoise` and :class:`PolyakTarget`. They change one hook each (the exploring
+action; π' as a copy of the actor that follows it); every other hook the update calls keeps its do-nothing default
+(:mod:`ilcsan.rl.methods.base`): the actor loss evaluates the actor's own π(s), nothing is added to the minibatch or
+the loss, nothing runs before an update or at intervals.
 
-Each variant (critic step; critic and actor step) is one function of the agent's tensors, run eagerly or as one
-compiled program; the networks run through ``torch.func.functional_call`` on tensors passed in
-(:func:`~ilcsan.compute.programs.as_function`), the gradients come from :func:`~ilcsan.compute.programs.
-value_and_grads`, Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the agent's own tensors.
+Each variant (critic step; critic and actor step) is one function of the agent's tensors, run eagerly, or as one
+compiled program when the run compiles (:func:`~ilcsan.compute.programs.as_program`: the same function either way);
+the networks run through ``torch.func.functional_call`` on tensors passed in (:func:`~ilcsan.compute.programs.
+as_function`), the gradients and the loss are ``torch.func.grad_and_value``'s (:func:`~ilcsan.compute.programs.
+value_and_grads`), Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the agent's own tensors.
 """
 
 from __future__ import annotations
 
+import copy
 import functools
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -37,7 +42,7 @@ from ... import methods
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
 from ...config import RunConfig, TrainingProtocol
 from ..adam import adam_
-from ..methods import Method, exploration_method, target_actor_method
+from ..methods import Exploration, Method, MethodContext, TargetActor, exploration_method, target_actor_method
 from .base import OffPolicyAlgorithm
 
 
@@ -232,6 +237,32 @@ class DDPG(TD3):
     @classmethod
     def policy_delay(cls, td3: TrainingProtocol) -> int:
         return 1
+
+
+class GaussianActionNoise(Exploration):
+    """TD3's exploration (the paper's): a = clip(π(s) + σ·scale·ε, low, high), ε ~ N(0, I) per seed from the seed's own
+    generator, σ = ``td3.exploration_noise`` relative to the action half-range ``scale``."""
+
+    def __init__(self, context: MethodContext):
+        self.scale, self.offset = context.action_scale, context.action_offset
+        self.sigma, self.action_dim = context.td3.exploration_noise, context.action_dim
+
+    def explore(self, agent, states: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
+        low, high = self.offset - self.scale, self.offset + self.scale
+        action = agent.act(states)
+        noise = np.stack([rng.standard_normal(self.action_dim) for rng in rngs])
+        return np.clip(action + noise * self.sigma * self.scale, low, high)
+
+
+class PolyakTarget(TargetActor):
+    """TD3's target actor (the paper's): π' is a copy of the actor made at the start, moved at every delayed step by
+    θ' ← τθ + (1 − τ)θ' (:meth:`TD3._delayed_step`)."""
+
+    soft_update = True
+
+    def __init__(self, context: MethodContext):
+        self.module = copy.deepcopy(context.actor)
+        self.module.requires_grad_(False)
 
 
 def recording_preaction(actor: Callable, preactions: list[torch.Tensor]) -> Callable:
