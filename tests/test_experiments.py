@@ -393,6 +393,17 @@ def test_list_shows_every_table_its_rows_protocol_runs_and_estimate(capsys):
     assert "the paper's numbers only" in out and "estimate:" in out and "64 cores" in out
 
 
+def test_list_of_a_table_shows_it_as_the_options_shrink_it(capsys, monkeypatch):
+    monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "100")
+    code, out, _ = run_cli(capsys, "reproduce", "algorithms", "--list", "--seeds", "1-3", "--steps", "20000",
+                           "--rows", "ilc-san+ddpg,ilc-san+sac")
+    assert code == 0 and "rows (2 to run)" in out and "ilc-san+care-bn" not in out
+    assert "protocol: 3 seeds × 20,000 steps" in out and "1 tasks × 2 rows × 3 seeds = 6 (120,000 steps)" in out
+    shrunk = dataclasses.replace(TABLES["algorithms"], rows=TABLES["algorithms"].rows[1:3], seeds=3, steps=20_000)
+    assert f"estimate: ≈ {estimate_hours(shrunk, 100.0, os.cpu_count() or 1):,.1f} h on this machine" in out
+    assert run_cli(capsys, "reproduce", "algorithms", "--list", "--rows", "nope")[0] == 2
+
+
 def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "300")
     code, out, _ = run_cli(capsys, "reproduce", str(grid_file(tmp_path)), "--list")

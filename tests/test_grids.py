@@ -25,7 +25,7 @@ PAPER_TABLES = list(paper.REWARD_TABLES)
 
 
 def test_the_five_tables_with_the_papers_protocol() -> None:
-    assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer", "beyond", "fidelity"]
+    assert list(TABLES) == ["perf", "decode", "dec_intra", "intra", "layer", "beyond", "algorithms", "fidelity"]
     assert list(TABLES)[:5] == PAPER_TABLES
     assert TABLES["perf"].tasks == paper.PAPER_TASK_NAMES
     assert len(TABLES["perf"].tasks) == 8
@@ -47,6 +47,23 @@ def test_the_beyond_grid_sets_each_rows_training_method(tmp_path) -> None:
     assert methods == {("ilc-san", "ilc-san", "polyak", "gaussian"), ("ilc-san+proxy", "ilc-san", "proxy", "gaussian"),
                        ("ilc-san+noisy", "ilc-san", "polyak", "noisy"), ("dan", "dan", "polyak", "gaussian")}
     assert len(runs) == 20
+
+
+def test_the_algorithms_grid_trains_one_actor_by_each_algorithm_on_the_beyond_grids_budget(tmp_path) -> None:
+    from ilcsan.experiments.grid import expand_grid
+
+    spec = TABLES["algorithms"]
+    assert (spec.tasks, spec.seeds, spec.steps) == (TABLES["beyond"].tasks, 5, 200_000)
+    runs = expand_grid(spec, tmp_path).runs
+    rows = {(run.row.slug, run.config.algorithm, run.config.actor.preset, run.config.actor.normalization,
+             run.config.td3.target_actor, run.config.td3.exploration) for run in runs}
+    assert rows == {("ilc-san", "td3", "ilc-san", "none", "polyak", "gaussian"),
+                    ("ilc-san+ddpg", "ddpg", "ilc-san", "none", "polyak", "gaussian"),
+                    ("ilc-san+sac", "sac", "ilc-san", "none", "polyak", "gaussian"),
+                    ("ilc-san+care-bn", "td3", "ilc-san", "care-bn", "polyak", "gaussian")}
+    beyond = {run.row.slug: run.config for run in expand_grid(TABLES["beyond"], tmp_path / "beyond").runs}
+    ours = {run.row.slug: run.config for run in runs}
+    assert ours["ilc-san"].actor == beyond["ilc-san"].actor and ours["ilc-san"].td3 == beyond["ilc-san"].td3
 
 
 def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> None:

@@ -364,6 +364,27 @@ def test_runs_of_another_grid_join_a_table_by_their_configuration_also_when_save
     assert default["beyond"].cell("ilc-san", "Hopper").scores == (3600, 3400)
 
 
+def test_the_algorithms_grid_takes_the_beyond_grids_ilc_san_runs_and_keeps_algorithms_apart(tmp_path: Path) -> None:
+    def tagged(seed: int, returns: list[float], table: str, row: str, algorithm: str = "td3", **kwargs) -> None:
+        run = trained_run(tmp_path, "Hopper", seed, returns, **kwargs)
+        config = json.loads((run / "config.json").read_text()) | {"table": table, "row": row, "algorithm": algorithm}
+        (run / "config.json").write_text(json.dumps(config))
+
+    tagged(0, [1700], "beyond", "ilc-san")
+    tagged(3, [40], "beyond", "ilc-san")
+    tagged(3, [3100], "beyond", "ilc-san+proxy", td3={"target_actor": "proxy"})  # a method the grid has no row for
+    tagged(3, [2500], "algorithms", "ilc-san+sac", algorithm="sac")
+    tagged(3, [2200], "algorithms", "ilc-san+ddpg", algorithm="ddpg")
+    tagged(3, [2900], "algorithms", "ilc-san+care-bn", normalization="care-bn")
+    trained_run(tmp_path, "Hopper", 1, [2000])  # untagged ILC-SAN trained by TD3 (a cell lists its runs by seed)
+    table = build_table(collect_runs(tmp_path), "algorithms")
+    scores = {slug: table.cell(slug, "Hopper").scores
+              for slug in ("ilc-san", "ilc-san+ddpg", "ilc-san+sac", "ilc-san+care-bn")}
+    assert scores == {"ilc-san": (1700, 2000, 40), "ilc-san+ddpg": (2200,), "ilc-san+sac": (2500,),
+                      "ilc-san+care-bn": (2900,)}
+    assert [row.key for row in table.rows] == list(scores)  # Proxy Target's run made no row of its own
+
+
 def test_a_corrupt_run_is_skipped_and_reported(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])
     bad_json = intra_run(tmp_path, "Hopper", "intra", 1, [3600])

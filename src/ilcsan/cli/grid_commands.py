@@ -40,8 +40,9 @@ def cmd_reproduce(args) -> int:
     from ..experiments.estimate import list_tables
     from ..experiments.grid import expand_grid, table_to_reproduce
 
-    if args.list:
-        specs = [table_to_reproduce(args.table)[0]] if args.table else None
+    if args.list:  # a named table as --seeds, --steps, --tasks, --rows shrink it
+        specs = ([expand_grid(table_to_reproduce(args.table)[0], args.out, options_from_args(args)).spec]
+                 if args.table else None)
         print(list_tables(specs))
         return 0
     if not args.table:

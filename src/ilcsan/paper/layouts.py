@@ -1,4 +1,5 @@
-"""The paper's reward tables as grids of runs (tasks × rows × seeds), and our ``beyond`` and ``fidelity`` grids.
+"""The paper's reward tables as grids of runs (tasks × rows × seeds), and our ``beyond``, ``algorithms`` and
+``fidelity`` grids.
 
 Each reward table of the paper (``tab:perf``, ``tab:decode``, ``tab:dec_intra``, ``tab:intra``,
 ``tab:layer``) is a :class:`TableSpec`: its tasks, its rows, and the paper's protocol (10 seeds,
@@ -147,6 +148,24 @@ BEYOND = TableSpec(
 """Our grid (not a table of the paper): Proxy Target (Xu et al., NeurIPS 2025) and NoisySAN exploration (Chen et
 al. 2024) against plain ILC-SAN and DAN on Hopper, 5 seeds × 200 000 steps by default."""
 
+ALGORITHMS = TableSpec(
+    name="algorithms",
+    caption="ILC-SAN trained by TD3, DDPG and SAC, and by TD3 with CaRe-BN",
+    tasks=("Hopper",),
+    rows=(
+        RowSpec("ilc-san", "ILC-SAN (TD3)", "ilc-san", published=("perf", "ilc-san-pop-det")),
+        RowSpec("ilc-san+ddpg", "ILC-SAN (DDPG)", "ilc-san", algorithm="ddpg"),
+        RowSpec("ilc-san+sac", "ILC-SAN (SAC)", "ilc-san", algorithm="sac"),
+        RowSpec("ilc-san+care-bn", "ILC-SAN + CaRe-BN (TD3)", "ilc-san", {"normalization": "care-bn"}),
+    ),
+    seeds=BEYOND.seeds,
+    steps=BEYOND.steps,
+)
+"""Our grid (not a table of the paper): the same actor trained by DDPG and by SAC beside TD3
+(:mod:`ilcsan.rl.algorithms`), and by TD3 with CaRe-BN (Xu et al., ICLR 2026), on Hopper with the ``beyond`` grid's
+seeds and budget, so that its TD3 row is that grid's ILC-SAN row (``ilcsan report`` places those runs here by their
+configuration)."""
+
 FIDELITY = TableSpec(
     name="fidelity",
     caption="Hopper's collapsed start: Algorithm 1's intra-layer timing, the authors' code's, and two remedies",
@@ -168,5 +187,5 @@ timing (``--intra-timing``), and under two remedies that keep ILC-SAN's network:
 TD3); 16 seeds × 50 000 steps by default (docs/fidelity-hopper/)."""
 
 TABLES: dict[str, TableSpec] = {spec.name: spec
-                                for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND, FIDELITY)}
-"""The paper's five reward tables as grids, by name, and our ``beyond`` and ``fidelity`` grids."""
+                                for spec in (PERF, DECODE, DEC_INTRA, INTRA, LAYER, BEYOND, ALGORITHMS, FIDELITY)}
+"""The paper's five reward tables as grids, by name, and our ``beyond``, ``algorithms`` and ``fidelity`` grids."""
