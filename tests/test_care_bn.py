@@ -258,6 +258,32 @@ def test_recalibration_gives_the_statistics_of_all_batches_in_one_pass():
     assert torch.equal(actor.norms[0].mean_innovation, before["norms.0.mean_innovation"])  # P's kept
 
 
+@pytest.mark.parametrize("encoder", ["pop-det", "layer"])
+@pytest.mark.parametrize("engine", ["fast", "reference"])
+def test_recalibration_stopping_at_each_layer_equals_whole_passes(encoder, engine):
+    """The recalibration's pass for layer l stops at layer l's currents; the statistics are those of whole passes
+    through the actor (Algorithm 1's, the chosen engine), layer l's batch statistics with the layers before it
+    normalised by theirs, pooled: exactly for the fast engine, to float rounding for the reference one. Spiking
+    (E_pop_det) and analog (E_layer) input, three synaptic layers."""
+    config = actor_config("ilc-san", normalization="care-bn", encoder=encoder, hidden=(24, 16))
+    actor = build_actor(config, 3, 2, [1.0, 1.0], seeds=(0, 1), engine=engine)
+    randomise_running_statistics(actor)
+    batches = [torch.randn(2, size, 3) for size in (7, 4)]
+    found: list = []
+    with torch.no_grad():
+        for index in range(len(actor.layers)):
+            parts = [actor.run(batch, norm_statistics=tuple(found)).norm_statistics[index] for batch in batches]
+            found.append(pool_statistics(parts, [7, 4]))
+        recalibrated = actor.recalibrated_statistics(batches)
+    assert len(recalibrated) == 3
+    for ours, whole in zip(recalibrated, found, strict=True):
+        for got, want in ((ours.mean, whole.mean), (ours.var, whole.var)):
+            if engine == "fast":
+                assert torch.equal(got, want)
+            else:
+                torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
+
+
 def test_running_statistics_are_the_buffers_the_target_actor_averages():
     actor = care_bn_actor()
     tensors = actor.running_statistics()

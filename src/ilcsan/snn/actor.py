@@ -172,20 +172,30 @@ class SpikingActor(_Actor):
                 intra_current = intra(step_spikes, weight, bias)
         return torch.stack(spikes, dim=1)
 
+    def layer_currents(self, index: int, values: torch.Tensor, constant: bool,
+                       norm_statistics: str | tuple[NormStatistics, ...]) -> tuple[torch.Tensor, NormStatistics | None]:
+        """Synaptic layer ``index``'s currents (K, T, B, D) from its input ``values`` — spikes (K, T, B, D), or an
+        analog input (K, B, D) the same at every step when ``constant`` — normalised under a checked
+        ``norm_statistics`` choice (CaRe-BN), with the statistics used (None without normalisation)."""
+        currents = self.layers[index](values)
+        used = None
+        if self.norms is not None:  # an analog input's (K, B, D) currents: the same statistics as their T copies
+            used = self.norm_statistics_of(index, currents, norm_statistics)
+            currents = self.norms[index](currents, used)
+        if constant:
+            currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
+        return currents, used
+
     def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None, membranes: bool,
                          norm_statistics: str | tuple[NormStatistics, ...]) -> ActorOutput:
         encoded = self.encoder(state)
         values, constant = encoded.values, encoded.constant
         inputs, recorded, used = [], [] if membranes else None, []
         last = len(self.layers) - 1
-        for index, layer in enumerate(self.layers):
+        for index in range(len(self.layers)):
             inputs.append(values)
-            currents = layer(values)
-            if self.norms is not None:  # an analog input's (K, B, D) currents: the same statistics as their T copies
-                used.append(self.norm_statistics_of(index, currents, norm_statistics))
-                currents = self.norms[index](currents, used[-1])
-            if constant:
-                currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
+            currents, statistics = self.layer_currents(index, values, constant, norm_statistics)
+            used.append(statistics)
             if noise is not None:
                 currents = currents + noise.charge[index]
             values = self.layer_spikes(currents, index == last, None if noise is None else noise.transmission[index],
@@ -233,12 +243,21 @@ class SpikingActor(_Actor):
     def recalibrated_statistics(self, batches: Sequence[torch.Tensor]) -> tuple[NormStatistics, ...]:
         """The exact statistics of each layer's currents pooled over all ``batches`` of normalised states
         (K, B_i, N), layer by layer: layer l's currents over every batch are computed with layers 1..l−1 normalised
-        by their recalibrated statistics, so it takes one pass over the batches per layer. The actor is unchanged
-        (:meth:`set_running_statistics_` installs the result)."""
+        by their recalibrated statistics, so it takes one pass over the batches per layer, and the pass for layer l
+        stops at layer l's currents (the later layers, the intra-layer loop and the decoder do not run: 1 + 2 + … + L
+        layer products instead of L²). The hidden layers' spikes are the fast engine's, equal to the reference
+        engine's. The actor is unchanged (:meth:`set_running_statistics_` installs the result)."""
         self._norms()  # a UserError for an actor without normalisation
         found: list[NormStatistics] = []
         for index in range(len(self.layers)):
-            parts = [self.run(batch, norm_statistics=tuple(found)).norm_statistics[index] for batch in batches]
+            parts = []
+            for batch in batches:
+                encoded = self.encoder(batch)
+                values, constant = encoded.values, encoded.constant
+                for before in range(index):
+                    currents, _ = self.layer_currents(before, values, constant, tuple(found))
+                    values, constant = self.layer_spikes(currents, output_layer=False), False
+                parts.append(batch_statistics(self.layers[index](values)))
             found.append(pool_statistics(parts, [batch.shape[1] for batch in batches]))
         return tuple(found)
 
