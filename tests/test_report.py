@@ -20,6 +20,7 @@ from ilcsan.analysis.render import format_stat, render_csv, render_latex, render
 from ilcsan.analysis.report import write_report
 from ilcsan.analysis.reward_tables import build_table, report_tables
 from ilcsan.cli.grid_commands import cmd_report
+from ilcsan.config import actor_config
 from ilcsan.experiments.grid import report_layout
 from ilcsan.paper.layouts import TABLES
 
@@ -472,6 +473,35 @@ def test_cmd_report_accepts_a_grid_file_and_rejects_unknown_tables(tmp_path: Pat
     assert report_layout("mine", collect_runs(runs)) == "mine"  # a tag found among the runs
     with pytest.raises(ValueError, match="no table 'intro'"):
         report_layout("intro", collect_runs(runs))
+
+
+def test_one_report_of_several_folders_counts_each_run_once(tmp_path: Path, capsys) -> None:
+    """``ilcsan report A B --out O``: the runs of both folders in one table; a run found twice (a folder below both,
+    or a copy of the same seed) counts once; several folders without --out are one line and exit code 2."""
+    from ilcsan.cli import main
+
+    beyond, algorithms = tmp_path / "beyond-grid", tmp_path / "algorithms-grid"
+    make_run(beyond, "Hopper", 1, "ILC-SAN", [2100], table="beyond", row="ilc-san")
+    make_run(beyond, "Hopper", 3, "ILC-SAN", [40], table="beyond", row="ilc-san")
+    make_run(algorithms, "Hopper", 3, "ILC-SAN (SAC)", [2500], table="algorithms", row="ilc-san+sac")
+    copy = make_run(algorithms, "Hopper", 1, "ILC-SAN", [2100], table="beyond", row="ilc-san", subdir="copy/seed1")
+    for tagged in (*beyond.rglob("config.json"), copy / "config.json"):  # as the trainer writes them: every setting
+        config = json.loads(tagged.read_text()) | {"actor": actor_config("ilc-san").to_dict(), "algorithm": "td3"}
+        tagged.write_text(json.dumps(config))
+    sac = next(algorithms.rglob("ilc-san+sac/seed3/config.json"))
+    sac.write_text(json.dumps(json.loads(sac.read_text()) | {"actor": actor_config("ilc-san").to_dict(),
+                                                             "algorithm": "sac"}))
+    assert main(["report", str(beyond), str(algorithms), str(beyond / "beyond"), "--table", "algorithms",
+                 "--out", str(tmp_path / "out")]) == 0
+    assert "3 run(s) found below" in capsys.readouterr().out
+    table = build_table(collect_runs([beyond, algorithms, beyond / "beyond"]), "algorithms")
+    assert table.cell("ilc-san", "Hopper").scores == (2100, 40)
+    assert table.cell("ilc-san+sac", "Hopper").scores == (2500,)
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert "2500" in markdown and str(copy) in markdown  # the copy is listed as skipped, not counted
+    assert main(["report", str(beyond), str(algorithms)]) == 2
+    err = capsys.readouterr().err
+    assert "needs --out" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
 def test_report_without_table_groups_runs_by_their_tags(tmp_path: Path) -> None:

@@ -115,11 +115,37 @@ class RunScan:
     skipped: tuple[SkippedRun, ...]
 
 
-def scan_runs(directory: str | Path) -> RunScan:
-    """Find every run below ``directory`` (by its ``config.json``), read it, and list the skipped."""
-    root = Path(directory)
-    if not root.is_dir():
-        raise UserError(f"run directory {root} does not exist or is not a directory")
+RunFolders = str | Path | Sequence[str | Path]
+"""One folder of runs or several (searched together, as one)."""
+
+
+def folders_of(directories: RunFolders) -> list[Path]:
+    """``directories`` as a list of paths (one folder or several)."""
+    return [Path(directories)] if isinstance(directories, str | Path) else [Path(item) for item in directories]
+
+
+def scan_runs(directories: RunFolders) -> RunScan:
+    """Find every run below ``directories`` (one folder or several; a run by its ``config.json``), read it, and list
+    the skipped: unreadable runs, and all but one run of a (row, task, seed) found more than once."""
+    roots = folders_of(directories)
+    for root in roots:
+        if not root.is_dir():
+            raise UserError(f"run directory {root} does not exist or is not a directory")
+    found = {path.resolve(): path for root in roots for path in _run_folders(root)}  # a folder below two roots: once
+    runs: list[RunRecord] = []
+    skipped: list[SkippedRun] = []
+    for path in sorted(found.values()):
+        try:
+            runs.append(read_run(path))
+        except RunFileError as error:
+            skipped.append(SkippedRun(path, str(error)))
+    kept, duplicates = _drop_duplicates(runs)
+    return RunScan(tuple(kept), tuple(skipped + duplicates))
+
+
+def _run_folders(root: Path) -> list[Path]:
+    """The run folders below ``root``: those with a ``config.json`` and an evaluation, and those with a
+    ``config.json`` only (a run before its first evaluation) that hold no other run folder."""
     candidates: list[Path] = []
     pending: list[Path] = []  # config.json without metrics.csv/result.json: a container or a fresh run
     for dirpath, dirnames, filenames in os.walk(root):
@@ -132,21 +158,12 @@ def scan_runs(directory: str | Path) -> RunScan:
         else:
             pending.append(Path(dirpath))
     found = candidates + pending
-    candidates += [path for path in pending if not any(path in other.parents for other in found)]
-    runs: list[RunRecord] = []
-    skipped: list[SkippedRun] = []
-    for path in sorted(candidates):
-        try:
-            runs.append(read_run(path))
-        except RunFileError as error:
-            skipped.append(SkippedRun(path, str(error)))
-    kept, duplicates = _drop_duplicates(runs)
-    return RunScan(tuple(kept), tuple(skipped + duplicates))
+    return candidates + [path for path in pending if not any(path in other.parents for other in found)]
 
 
-def collect_runs(directory: str | Path) -> list[RunRecord]:
-    """Every usable run below ``directory`` (see :func:`scan_runs` for the skipped ones)."""
-    return list(scan_runs(directory).runs)
+def collect_runs(directories: RunFolders) -> list[RunRecord]:
+    """Every usable run below ``directories`` (see :func:`scan_runs` for the skipped ones)."""
+    return list(scan_runs(directories).runs)
 
 
 def read_run(directory: str | Path) -> RunRecord:

@@ -21,7 +21,7 @@ from pathlib import Path
 from ..files import atomic_write_text
 from ..paper.layouts import TableSpec
 from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_diagnostics
-from .collect import RunRecord, RunScan, SkippedRun, collect_runs, read_run, scan_runs
+from .collect import RunFolders, RunRecord, RunScan, SkippedRun, collect_runs, folders_of, read_run, scan_runs
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
 from .render import format_stat, latex_escape, render_csv, render_latex, render_markdown
 from .reward_tables import Cell, RowResult, TableResult, build_table, report_tables
@@ -37,18 +37,21 @@ REPORT_FILES: dict[str, str] = {
 """The files of a report by kind, as :func:`write_report` returns them."""
 
 
-def write_report(directory: str | Path, out_dir: str | Path | None = None,
+def write_report(directories: RunFolders, out_dir: str | Path | None = None,
                  table: str | TableSpec | None = None, collapse_steps: Sequence[int] = (),
                  collapse_return: float = COLLAPSE_RETURN) -> dict[str, Path]:
-    """Scan ``directory`` for runs and write ``report.md``, ``report.tex``, ``report.csv`` and
-    ``curves.png`` into ``out_dir`` (default: ``directory``), each atomically. With ``collapse_steps``, report.md
-    also counts each row's seeds below ``collapse_return`` at those steps (:mod:`.collapse`) and ``diagnostics.png``
-    draws their actors' diagnostics up to the last of them.
+    """Scan ``directories`` (one folder or several) for runs and write ``report.md``, ``report.tex``, ``report.csv``
+    and ``curves.png`` into ``out_dir`` (default: the folder, when it is one), each atomically. With
+    ``collapse_steps``, report.md also counts each row's seeds below ``collapse_return`` at those steps
+    (:mod:`.collapse`) and ``diagnostics.png`` draws their actors' diagnostics up to the last of them.
 
     Returns the paths by kind: ``{"markdown", "latex", "csv", "curves"}`` (and ``"diagnostics"``).
     """
-    scan = scan_runs(directory)
-    out = Path(out_dir) if out_dir is not None else Path(directory)
+    roots = folders_of(directories)
+    if out_dir is None and len(roots) != 1:
+        raise ValueError("a report of several folders needs out_dir")
+    scan = scan_runs(roots)
+    out = Path(out_dir) if out_dir is not None else roots[0]
     results = report_tables(scan.runs, table)
     paths = {kind: out / name for kind, name in REPORT_FILES.items()}
     markdown = render_markdown(results, scan.skipped)

@@ -111,7 +111,9 @@ def _add_report_command(subparsers) -> None:
     """``ilcsan report DIR``: the paper's tables and learning curves from runs on disk."""
     report = subparsers.add_parser("report", help="tables and learning curves from runs",
                                  description="Build the paper's tables and learning curves from runs on disk.")
-    report.add_argument("directory", help="folder holding runs (searched recursively)")
+    report.add_argument("directory", nargs="+",
+                        help="folder holding runs (searched recursively); several folders are reported together "
+                             "(then give --out)")
     report.add_argument("--table", default=None,
                         help="table layout to use (default: from the runs' tags); runs not written by `reproduce` "
                              "land in the row with their label, else in the row with their actor settings and "

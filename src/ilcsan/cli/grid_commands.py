@@ -77,22 +77,26 @@ def parse_steps(text: str) -> tuple[int, ...]:
 
 
 def cmd_report(args) -> int:
-    """``ilcsan report DIR [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
+    """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     from ..analysis.collect import scan_runs
     from ..analysis.report import write_report
     from ..experiments.grid import report_layout
 
-    scan = scan_runs(args.directory)
+    folders = [args.directory] if isinstance(args.directory, str) else list(args.directory)
+    where = ", ".join(folders)
+    if len(folders) > 1 and not args.out:
+        raise UserError(f"a report of {len(folders)} folders needs --out DIR: where to write it")
+    scan = scan_runs(folders)
     if not scan.runs:
-        raise UserError(_no_runs_message(args.directory, scan.skipped))
+        raise UserError(_no_runs_message(where, scan.skipped))
     table = report_layout(args.table, scan.runs)
     collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
     try:
-        paths = write_report(args.directory, args.out, table, collapse_steps, args.collapse_return)
+        paths = write_report(folders, args.out, table, collapse_steps, args.collapse_return)
     except OSError as error:  # --out is a file, read-only, full, ...
-        raise UserError(f"cannot write the report to {args.out or args.directory}: {error.strerror or error}; "
+        raise UserError(f"cannot write the report to {args.out or where}: {error.strerror or error}; "
                         "choose another --out") from None
-    print(f"ilcsan report: {len(scan.runs)} run(s) found below {args.directory}"
+    print(f"ilcsan report: {len(scan.runs)} run(s) found below {where}"
           + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
     for kind, path in paths.items():
         print(f"  {kind:<8} {path}")
