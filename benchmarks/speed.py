@@ -169,13 +169,15 @@ def best_float32_floor(task: str, preset: str, seeds: tuple[int, ...], threads: 
 
 def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], threads: int, steps: int,
                    warmup: int, compiled: bool = True, matmul: str = "float32", algorithm: str = "td3",
-                   **td3_options) -> float:
+                   normalization: str = "none", **td3_options) -> float:
     """Environment steps per second per seed, including updates, after ``warmup`` steps; ``td3_options`` choose a
-    training method (e.g. ``target_actor="proxy"``), ``algorithm`` the off-policy algorithm."""
+    training method (e.g. ``target_actor="proxy"``), ``algorithm`` the off-policy algorithm, ``normalization`` the
+    actor's (``care-bn``)."""
     compile_mode = "on" if engine == "fast" and compiled else "off"
     td3 = TD3Config(start_steps=0, update_after=100, update_every=50, **td3_options)
     config = RunConfig(task=task, seeds=seeds, steps=warmup + steps + 1, eval_every=10**9, eval_episodes=1,
-                       actor=actor_config(preset), td3=td3, engine=engine, threads=threads, compile=compile_mode,
+                       actor=actor_config(preset, normalization=normalization), td3=td3, engine=engine,
+                       threads=threads, compile=compile_mode,
                        matmul=matmul, algorithm=algorithm)
     return 1.0 / seconds_per_training_step(config, warmup, steps)[0]
 

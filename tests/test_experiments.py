@@ -212,6 +212,9 @@ def test_each_row_of_a_grid_costs_what_its_method_measured():
     assert rows == pytest.approx({"ilc-san": 1.0, "ilc-san+proxy": 2.8, "ilc-san+noisy": 2.0, "dan": 0.6})
     assert estimate_hours("beyond", 100.0, 1) == pytest.approx(5 * (1 + 2.8 + 2.0 + 0.6) * 2000 / 3600)
     assert estimate_hours("beyond", 100.0, 20) == pytest.approx(2.8 * 2000 / 3600)  # the slowest run decides
+    algorithms = {row.slug: row_step_cost(row) for row in TABLES["algorithms"].rows}  # the actor's normalisation too
+    assert algorithms == pytest.approx({"ilc-san": 1.0, "ilc-san+ddpg": 1.2, "ilc-san+sac": 1.4,
+                                        "ilc-san+care-bn": 1.15})
 
 
 # ------------------------------------------------------------------------------------------------

@@ -7,7 +7,7 @@ import os
 from collections.abc import Iterable
 
 from .. import methods
-from ..config import td3_config_class
+from ..config import actor_config, td3_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 
@@ -66,10 +66,14 @@ def steps_per_second_default() -> float:
 
 def row_step_cost(row: RowSpec) -> float:
     """A row's time per environment step relative to plain ILC-SAN's (trained by TD3): DAN's is cheaper; the row's
-    algorithm and training methods multiply it by their declared :meth:`~ilcsan.methods.Declared.relative_cost`."""
+    algorithm, its actor's normalisation and its training methods multiply it by their declared
+    :meth:`~ilcsan.methods.Declared.relative_cost`."""
     td3 = td3_config_class()(**row.td3)
     algorithm = methods.declared("algorithm", row.algorithm).relative_cost(td3)
-    return algorithm * (DAN_STEP_COST if row.preset == "dan" else methods.relative_cost(td3))
+    if row.preset == "dan":
+        return algorithm * DAN_STEP_COST
+    normalization = methods.declared("normalization", actor_config(row.preset, **row.overrides).normalization)
+    return algorithm * normalization.relative_cost(td3) * methods.relative_cost(td3)
 
 
 def task_step_cost(task: str) -> float:
