@@ -177,8 +177,7 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
     td3 = TD3Config(start_steps=0, update_after=100, update_every=50, **td3_options)
     config = RunConfig(task=task, seeds=seeds, steps=warmup + steps + 1, eval_every=10**9, eval_episodes=1,
                        actor=actor_config(preset, normalization=normalization), td3=td3, engine=engine,
-                       threads=threads, compile=compile_mode,
-                       matmul=matmul, algorithm=algorithm)
+                       threads=threads, compile=compile_mode, matmul=matmul, algorithm=algorithm)
     return 1.0 / seconds_per_training_step(config, warmup, steps)[0]
 
 

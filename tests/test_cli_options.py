@@ -61,7 +61,6 @@ def test_no_switches_parse_to_the_config_defaults():
     assert build_run_config(args) == RunConfig()
 
 
-
 def _sample_value(field) -> tuple[str, object]:
     """A command-line value other than the field's default, and what it should become."""
     choices = field.metadata["choices"]

@@ -78,12 +78,12 @@ def parse_steps(text: str) -> tuple[int, ...]:
 
 def cmd_report(args) -> int:
     """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
-    from ..analysis.collect import scan_runs
+    from ..analysis.collect import folders_of, scan_runs
     from ..analysis.report import write_report
     from ..experiments.grid import report_layout
 
-    folders = [args.directory] if isinstance(args.directory, str) else list(args.directory)
-    where = ", ".join(folders)
+    folders = folders_of(args.directory)
+    where = ", ".join(map(str, folders))
     if len(folders) > 1 and not args.out:
         raise UserError(f"a report of {len(folders)} folders needs --out DIR: where to write it")
     scan = scan_runs(folders)
