@@ -89,6 +89,26 @@ def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> Non
                               "rows": [{"slug": "n", "preset": "ilc-san", "td3": {"noisy_beta": -1.0}}]})
 
 
+def test_a_rows_methods_are_checked_on_each_task_of_the_grid_and_of_the_command(tmp_path) -> None:
+    from ilcsan.experiments.grid import GridOptions, expand_grid
+
+    noisy = {"slug": "noisy", "preset": "ilc-san", "td3": {"exploration": "noisy"}}
+    with pytest.raises(UserError, match=r"rows\[0\] on Pendulum-v1: --exploration noisy on Pendulum-v1 needs "
+                                        r"--noisy-return-reference R"):
+        grids.grid_from_dict({"name": "mine", "tasks": ["Hopper", "Pendulum-v1"], "rows": [noisy]})
+    given = grids.grid_from_dict({"name": "mine", "tasks": ["Pendulum-v1"], "seeds": 2, "rows": [
+        {**noisy, "td3": {"exploration": "noisy", "noisy_return_reference": 100.0}}]})
+    assert len(expand_grid(given, tmp_path).runs) == 2
+    spec = TABLES["beyond"]
+    with pytest.raises(UserError, match=r"table beyond, row ilc-san\+noisy, Pendulum-v1: --exploration noisy on "
+                                        r"Pendulum-v1 needs --noisy-return-reference R"):
+        expand_grid(spec, tmp_path, GridOptions(tasks=("Pendulum-v1",), rows=("ilc-san+noisy",), seeds=(0,)))
+    with pytest.raises(UserError, match=r"row ilc-san\+care-bn, Hopper: --normalization care-bn .* --batch-size must "
+                                        r"be at least 2, got 1"):
+        expand_grid(TABLES["algorithms"], tmp_path, GridOptions(rows=("ilc-san+care-bn",), seeds=(0,),
+                                                                td3={"batch_size": 1}))
+
+
 def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_follow(tmp_path) -> None:
     from ilcsan.analysis.reward_tables import _rows_by_configuration
     from ilcsan.experiments.estimate import list_tables, row_step_cost
@@ -102,8 +122,8 @@ def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_f
     assert {run.row.slug: run.config.algorithm for run in expand_grid(spec, tmp_path).runs} == {
         "td3": "td3", "sac": "sac", "ddpg": "ddpg"}
     assert [row_step_cost(row) for row in spec.rows] == pytest.approx(
-        [1.0, sac.STEP_COST, td3.DDPG_STEP_COST * 0.6]), "DAN's 0.6 times DDPG's own cost"
-    assert sac.STEP_COST != 1.0 and td3.DDPG_STEP_COST != 1.0
+        [1.0, sac.SAC.step_cost, td3.DDPG.step_cost * 0.6]), "DAN's 0.6 times DDPG's own cost"
+    assert sac.SAC.step_cost != 1.0 and td3.DDPG.step_cost != 1.0
     listing = list_tables([spec], 100.0, 1)
     assert re.search(r"sac +sac +preset=ilc-san algorithm=sac\n", listing)
     assert re.search(r"td3 +td3 +preset=ilc-san\n", listing), "the default algorithm is not spelled out"

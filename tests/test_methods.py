@@ -68,17 +68,13 @@ class ToyNoise(Declared):
     kind, name, title = "exploration", "toy", "the toy noise"
     paper = "a toy method of tests/test_methods.py"
     option_help = "toy, uniform noise with a level (tests only)"
-    cost_note = "1.5"
+    step_cost = 1.5
     training = UniformNoiseWithALevel
 
     @dataclass(frozen=True)
     class Settings:
         toy_width: float = setting(0.3, "the toy's noise width, relative to the action half-range",
                                    bounds="positive")
-
-    @classmethod
-    def relative_cost(cls, td3) -> float:
-        return 1.5
 
 
 @pytest.fixture
@@ -99,6 +95,7 @@ def toy_td3(**options):
 def test_registering_makes_the_name_a_setting_and_a_method(toy):
     td3 = td3_config_class()(exploration="toy")
     assert methods.relative_cost(td3) == 1.5 and td3.toy_width == 0.3
+    assert ToyNoise.cost_note == "1.5", "the phrase of reproduce --list comes from the declared step cost"
     check_settings(td3)  # a valid choice now
     with pytest.raises(UserError, match="--exploration 'toys' is not one of: gaussian, noisy, toy"):
         check_settings(td3_config_class()(exploration="toys"))

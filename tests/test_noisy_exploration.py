@@ -223,13 +223,19 @@ def test_the_options_parse_are_saved_in_config_json_and_bad_values_are_one_line(
 
 
 def test_an_interrupted_noisy_run_resumes_to_the_same_curve_and_noise(tmp_path, monkeypatch):
-    """Interrupted mid-episode: the resumed run draws the same series again and reads on from the same sample."""
+    """Interrupted mid-episode: the resumed run draws the same series again and reads on from the same sample. The
+    checkpoint it resumes from keeps its module state under ``parameters``, as checkpoints written before that key
+    was named ``module`` did: they resume as well."""
     from test_training import assert_resumes_to_the_same_curve, tiny_method_run
 
+    def as_written_before(checkpoint: dict) -> dict:
+        checkpoint["exploration"]["parameters"] = checkpoint["exploration"].pop("module")
+        return checkpoint
+
     config = tiny_method_run(start_steps=100, exploration="noisy", noisy_return_reference=1000.0)
-    for straight, resumed in assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch):
-        assert torch.equal(straight["exploration"]["parameters"]["decoder_sigma"],
-                           resumed["exploration"]["parameters"]["decoder_sigma"])
+    for straight, resumed in assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch, as_written_before):
+        assert torch.equal(straight["exploration"]["module"]["decoder_sigma"],
+                           resumed["exploration"]["module"]["decoder_sigma"])
         assert straight["exploration"]["streams"]["cursor"] == resumed["exploration"]["streams"]["cursor"] > 0
 
 

@@ -181,11 +181,15 @@ def tiny_method_run(**td3_options) -> RunConfig:
     return tiny_run(seeds=(0, 1), steps=450, td3=td3)
 
 
-def assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch) -> list[tuple[dict, dict]]:
-    """Train ``config`` straight and interrupted-then-resumed: every seed's evaluations must be equal. Returns each
+def assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch, edit=None) -> list[tuple[dict, dict]]:
+    """Train ``config`` straight and interrupted-then-resumed: every seed's evaluations must be equal. ``edit``, if
+    given, rewrites each seed's checkpoint dictionary before the resume (an older checkpoint's layout). Returns each
     seed's final checkpoints (straight, resumed) for the caller's own checks."""
     train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
     interrupt_after_first_checkpoint(config, tmp_path / "interrupted", monkeypatch)
+    for seed in config.seeds if edit else ():
+        path = tmp_path / "interrupted" / f"seed{seed}" / "checkpoint.pt"
+        torch.save(edit(torch.load(path, weights_only=True)), path)
     train(config, tmp_path / "interrupted", resume=True, progress=False, log=lambda *_: None)
     checkpoints = []
     for seed in config.seeds:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .. import methods
 from ..analysis.collect import RunRecord
 from ..config import RunConfig, actor_config, check_settings, described_fields, td3_config_class
 from ..errors import UserError
@@ -140,6 +141,10 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
                 td3=dataclasses.replace(td3, **row.td3), threads=1, label=row.label, table=spec.name, row=row.slug,
                 **{name: getattr(shrunk, name) for name in PROTOCOL}), **settings)
             check_settings(base)
+            try:
+                methods.check_run(task, base.algorithm, base.actor, base.td3)
+            except UserError as error:
+                raise UserError(f"table {spec.name}, row {row.slug}, {task}: {error}") from None
             for seed in seeds:
                 directory = out / spec.name / task_folder(task) / row.slug / f"seed{seed}"
                 runs.append(GridRun(task, row, seed, directory, dataclasses.replace(base, seeds=(seed,))))

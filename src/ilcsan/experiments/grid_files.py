@@ -25,7 +25,6 @@ from ..config import (
     td3_config_class,
 )
 from ..errors import UserError
-from ..methods import check_methods
 from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
 
@@ -127,11 +126,18 @@ def grid_from_dict(data: Mapping[str, Any], source: str = "grid") -> TableSpec:
     caption = data.get("caption", name)
     if not isinstance(caption, str):
         raise UserError(f"{source}: caption must be a string, got {caption!r}")
-    rows = _rows(data["rows"], source)
+    tasks, rows = _tasks(data["tasks"], source), _rows(data["rows"], source)
+    for index, row in enumerate(rows):
+        for task in tasks:
+            try:
+                methods.check_run(task, row.algorithm, actor_config(row.preset, **row.overrides),
+                                  td3_config_class()(**row.td3))
+            except UserError as error:
+                raise UserError(f"{source}: rows[{index}] on {task}: {error}") from None
     return TableSpec(
         name=name,
         caption=caption,
-        tasks=_tasks(data["tasks"], source),
+        tasks=tasks,
         rows=rows,
         seeds=_positive_int(data, "seeds", SEEDS, source),
         steps=_positive_int(data, "steps", STEPS, source),
@@ -198,10 +204,9 @@ def _row_from_dict(item: Any, where: str) -> RowSpec:
     label = item.get("label", slug)
     if not isinstance(label, str) or not label.strip():
         raise UserError(f"{where}: label must be a non-empty string, got {label!r}")
-    overrides, network = _row_actor(preset, item.get("overrides", {}), f"{where}: overrides")
-    algorithm = _row_algorithm(item, where)
-    return RowSpec(slug=slug, label=label, preset=preset, overrides=overrides, algorithm=algorithm,
-                   td3=_row_td3(item, network, algorithm, where))
+    return RowSpec(slug=slug, label=label, preset=preset,
+                   overrides=_row_actor(preset, item.get("overrides", {}), f"{where}: overrides"),
+                   algorithm=_row_algorithm(item, where), td3=_row_td3(item, where))
 
 
 def _row_algorithm(item: Mapping[str, Any], where: str) -> str:
@@ -213,9 +218,9 @@ def _row_algorithm(item: Mapping[str, Any], where: str) -> str:
     return algorithm
 
 
-def _row_actor(preset: str, overrides: Any, where: str) -> tuple[dict[str, Any], str]:
+def _row_actor(preset: str, overrides: Any, where: str) -> dict[str, Any]:
     """A row's overrides, checked by building its actor (:func:`~ilcsan.config.actor_config`, whose errors name the
-    switch), and the actor's network (a deep actor takes only :data:`DAN_OVERRIDE_KEYS`)."""
+    switch; a deep actor takes only :data:`DAN_OVERRIDE_KEYS`)."""
     _check_keys(overrides, OVERRIDE_KEYS, where)
     checked = {key: _typed(key, value, _SWITCHES[key][1], where) for key, value in overrides.items()}
     try:
@@ -226,7 +231,7 @@ def _row_actor(preset: str, overrides: Any, where: str) -> tuple[dict[str, Any],
     if network == "deep" and spiking:
         raise UserError(f"{where}: the deep actor (preset {preset!r}) has no spiking switch {spiking[0]!r}; "
                         f"it takes only {', '.join(DAN_OVERRIDE_KEYS)}")
-    return checked, network
+    return checked
 
 
 def _typed(key: str, value: Any, kind: type, where: str) -> Any:
@@ -238,18 +243,16 @@ def _typed(key: str, value: Any, kind: type, where: str) -> Any:
     return float(value) if kind is float else value
 
 
-def _row_td3(item: Mapping[str, Any], network: str, algorithm: str, where: str) -> dict[str, Any]:
+def _row_td3(item: Mapping[str, Any], where: str) -> dict[str, Any]:
     """A row's ``td3`` table (its training method), checked against the declared settings: a row may set the
     training settings that choose or tune a method (:func:`~ilcsan.config.method_settings`); the grid's others are
-    shared. Its methods must suit the actor's network and the row's algorithm (:meth:`~ilcsan.methods.Declared.check`,
-    which for an algorithm looks only at the training settings)."""
+    shared. Whether its methods suit its actor, its algorithm and each task is checked with the grid's tasks
+    (:func:`grid_from_dict`), and again run by run with the settings a grid's command adds
+    (:func:`~ilcsan.experiments.grid.expand_grid`)."""
     td3 = item.get("td3", {})
     _check_keys(td3, method_settings(), f"{where}: td3")
     try:
-        settings = td3_config_class()(**td3)
-        check_settings(settings)
-        check_methods(settings, network)
-        methods.declared("algorithm", algorithm).check("", settings)
+        check_settings(td3_config_class()(**td3))
     except (UserError, TypeError) as error:
         raise UserError(f"{where}: td3: {error}") from None
     return dict(td3)

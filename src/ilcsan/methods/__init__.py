@@ -21,7 +21,7 @@ from ..errors import UserError
 from . import care_bn, defaults, noisysan, preaction_penalty, proxy_target, sac, td3
 from .declaration import KINDS, TD3_SELECTORS, Declared, MethodProducts
 
-__all__ = ["KINDS", "TD3_SELECTORS", "Declared", "MethodProducts", "check_methods", "declared", "default", "either",
+__all__ = ["KINDS", "TD3_SELECTORS", "Declared", "MethodProducts", "check_run", "declared", "default", "either",
            "every", "of_run", "papers", "register", "registered", "relative_cost", "selected", "unregister"]
 
 _REGISTRY: dict[str, dict[str, type[Declared]]] = {kind: {} for kind in KINDS}
@@ -102,15 +102,21 @@ def relative_cost(td3: Any) -> float:
     return math.prod(method.relative_cost(td3) for method in selected(td3))
 
 
-def check_methods(td3: Any, network: str) -> None:
-    """:class:`~ilcsan.errors.UserError` if a method ``td3`` chooses needs a spiking actor (``spiking_only``) and
-    ``network`` is DAN's (deep)."""
-    if network == "spiking":
-        return
-    for method in selected(td3):
-        if method.spiking_only:
-            raise UserError(f"{method.option()} is a training method for spiking actors ({method.spiking_reason}); "
-                            f"DAN trains with TD3's own: drop {method.flag()} for DAN")
+def check_run(task: str, algorithm: str, actor: Any, td3: Any) -> None:
+    """:class:`~ilcsan.errors.UserError` for a run on ``task`` that its declarations cannot train: the algorithm's own
+    refusals first (SAC: TD3's methods), then a method chosen for a deep actor (DAN) that needs a spiking one
+    (``spiking_only``), then the refusals of the actor's normalisation, the loss terms, the target actor and the
+    exploration (:meth:`Declared.check`). ``actor``: an :class:`~ilcsan.config.ActorConfig` (its ``network`` and
+    ``normalization``); ``td3``: the training settings."""
+    declared("algorithm", algorithm).check(task, td3)
+    chosen = [declared("normalization", actor.normalization), *selected(td3)]
+    if actor.network != "spiking":
+        for method in chosen:
+            if method.spiking_only:
+                raise UserError(f"{method.option()} is a training method for spiking actors "
+                                f"({method.spiking_reason}); DAN trains with TD3's own: drop {method.flag()} for DAN")
+    for method in chosen:
+        method.check(task, td3)
 
 
 for _method in (td3.TD3, td3.DDPG, sac.SAC,

@@ -7,11 +7,6 @@ from __future__ import annotations
 from ..errors import UserError
 from .declaration import Declared
 
-STEP_COST = 1.15
-"""A training step's time with CaRe-BN over a plain one (ILC-SAN, Hopper, compiled, one thread): 1.05–1.11 for the
-step itself (``benchmarks/methods.py --methods plain,care-bn``: the batch statistics in the actor's loss and the
-Kalman update), and ≈ 8 % more for its recalibration every 5 000 steps (``benchmarks/recalibration.py``)."""
-
 
 class CareBN(Declared):
     kind, name, title = "normalization", "care-bn", "CaRe-BN"
@@ -25,11 +20,10 @@ class CareBN(Declared):
     spiking_only = True
     spiking_reason = "it normalises a spiking actor's synaptic currents"
     training = "ilcsan.rl.methods.care_bn:CareBN"
-    cost_note = f"{STEP_COST:g}"
-
-    @classmethod
-    def relative_cost(cls, td3) -> float:
-        return STEP_COST
+    step_cost = 1.15
+    """A training step's time with CaRe-BN over a plain one (ILC-SAN, Hopper, compiled, one thread): 1.05–1.11 for the
+    step itself (``benchmarks/methods.py --methods plain,care-bn``: the batch statistics in the actor's loss and the
+    Kalman update), and ≈ 8 % more for its recalibration every 5 000 steps (``benchmarks/recalibration.py``)."""
 
     @classmethod
     def check(cls, task: str, td3) -> None:

@@ -53,12 +53,14 @@ class Declared:
     accepted. ``Settings``: a frozen dataclass of its own settings, each declared with
     :func:`~ilcsan.settings.setting` (help, default, bounds, flag), which join the training settings
     (:func:`ilcsan.config.td3_config_class`), the ``train`` command line, grid rows and a run's identity in reports.
-    ``relative_cost(td3)``: a training step's time with it over a plain step's, and ``cost_note``, the same as a phrase
-    for ``reproduce --list`` ("" when it costs nothing extra). ``products(td3, state_dim, action_dim, products)``: what
-    it changes in a step's matrix products (:class:`MethodProducts`). ``spiking_only`` and ``spiking_reason``: it needs
-    a spiking actor, and why. ``check(task, td3)``: raise :class:`~ilcsan.errors.UserError` for settings it cannot
-    train with. ``training``: its hooks (:mod:`ilcsan.rl.methods`, :mod:`ilcsan.rl.algorithms`), as ``module:Class``,
-    imported when a run trains (torch), or the class itself.
+    ``step_cost``: a training step's time with it over a plain step's, as measured (``benchmarks/methods.py``);
+    ``relative_cost(td3)`` returns it, or computes the ratio from settings when it depends on them; ``cost_note``, the
+    same as a phrase for ``reproduce --list`` (from ``step_cost`` unless given; "" when it costs nothing extra).
+    ``products(td3, state_dim, action_dim, products)``: what it changes in a step's matrix products
+    (:class:`MethodProducts`). ``spiking_only`` and ``spiking_reason``: it needs a spiking actor, and why.
+    ``check(task, td3)``: raise :class:`~ilcsan.errors.UserError` for settings it cannot train with. ``training``: its
+    hooks (:mod:`ilcsan.rl.methods`, :mod:`ilcsan.rl.algorithms`), as ``module:Class``, imported when a run trains
+    (torch), or the class itself.
     """
 
     kind: ClassVar[str]
@@ -69,15 +71,21 @@ class Declared:
     training: ClassVar[str | type]
     renamed: ClassVar[tuple[str, ...]] = ()
     Settings: ClassVar[type] = NoSettings
+    step_cost: ClassVar[float] = 1.0
     cost_note: ClassVar[str] = ""
     spiking_only: ClassVar[bool] = False
     spiking_reason: ClassVar[str] = ""
     weight: ClassVar[str] = ""
     """A loss term's setting that weighs it (on when above 0)."""
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "step_cost" in vars(cls) and "cost_note" not in vars(cls) and cls.step_cost != 1.0:
+            cls.cost_note = f"{cls.step_cost:g}"
+
     @classmethod
     def relative_cost(cls, td3: Any) -> float:
-        return 1.0
+        return cls.step_cost
 
     @classmethod
     def products(cls, td3: Any, state_dim: int, action_dim: int, products: MethodProducts) -> None:

@@ -10,8 +10,6 @@ from ..errors import UserError
 from ..settings import setting
 from .declaration import Declared
 
-STEP_COST = 2.0
-"""A training step with NoisySAN takes about this many plain steps' time (its noise is drawn and scaled per step)."""
 RETURN_REFERENCE: dict[str, float] = {
     "Ant": 6000.0, "HalfCheetah": 12000.0, "Hopper": 4000.0, "Walker2d": 6000.0, "Humanoid": 6000.0,
     "HumanoidStandup": 180000.0, "InvertedDoublePendulum": 10000.0, "BipedalWalker": 320.0,
@@ -36,7 +34,9 @@ class NoisySAN(Declared):
     paper = ("NoisySAN: coloured noise in every spiking layer's charge and spike transmission and in the decoder, "
              "with a learned decoder noise scale (Chen et al., arXiv 2403.04162)")
     option_help = "NoisySAN's coloured noise inside the spiking neurons (Chen et al. 2024; spiking actors only)"
-    cost_note = f"{STEP_COST:g}"
+    step_cost = 2.0
+    """A training step with NoisySAN takes about this many plain steps' time (its noise is drawn and scaled per
+    step)."""
     spiking_only = True
     spiking_reason = "it puts noise into spiking neurons, and DAN has none"
     training = "ilcsan.rl.methods.noisysan:NoisySAN"
@@ -52,10 +52,6 @@ class NoisySAN(Declared):
             None, "NoisySAN: the return R* at which the noise penalty's weight max(0, R)/R* reaches 1 (default per "
                   "paper task: Hopper 4000, Walker2d/Ant/Humanoid 6000, HalfCheetah 12000, ...; needed for other "
                   "tasks)", bounds="positive")
-
-    @classmethod
-    def relative_cost(cls, td3) -> float:
-        return STEP_COST
 
     @classmethod
     def check(cls, task: str, td3) -> None:

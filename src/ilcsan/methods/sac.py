@@ -8,10 +8,6 @@ from ..errors import UserError
 from ..settings import setting
 from .declaration import TD3_SELECTORS, Declared
 
-STEP_COST = 1.4
-"""A training step's time with SAC over TD3's (ILC-SAN, Hopper, compiled, one thread; ``benchmarks/methods.py``): its
-actor steps at every update, with twice the output populations and both critics in the actor's loss."""
-
 
 class SAC(Declared):
     kind, name, title = "algorithm", "sac", "SAC"
@@ -20,11 +16,9 @@ class SAC(Declared):
     option_help = ("sac (squashed Gaussian actor: the output populations decode a mean and a log-std; entropy "
                    "tuned)")
     training = "ilcsan.rl.algorithms.sac:SAC"
-    cost_note = f"{STEP_COST:g}"
-
-    @classmethod
-    def relative_cost(cls, td3) -> float:
-        return STEP_COST
+    step_cost = 1.4
+    """A training step's time with SAC over TD3's (ILC-SAN, Hopper, compiled, one thread; ``benchmarks/methods.py``):
+    its actor steps at every update, with twice the output populations and both critics in the actor's loss."""
 
     @classmethod
     def check(cls, task: str, td3) -> None:

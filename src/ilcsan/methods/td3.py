@@ -5,10 +5,6 @@ from __future__ import annotations
 
 from .declaration import Declared
 
-DDPG_STEP_COST = 1.2
-"""A training step's time with DDPG over TD3's (ILC-SAN, Hopper, compiled, one thread; ``benchmarks/methods.py``): one
-critic, but an actor step at every update instead of every second."""
-
 
 class TD3(Declared):
     kind, name, title = "algorithm", "td3", "TD3"
@@ -24,8 +20,6 @@ class DDPG(Declared):
              "smoothing, the actor and targets updated at every critic update")
     option_help = "ddpg (one critic, no target smoothing or delay)"
     training = "ilcsan.rl.algorithms.td3:DDPG"
-    cost_note = f"{DDPG_STEP_COST:g}"
-
-    @classmethod
-    def relative_cost(cls, td3) -> float:
-        return DDPG_STEP_COST
+    step_cost = 1.2
+    """A training step's time with DDPG over TD3's (ILC-SAN, Hopper, compiled, one thread; ``benchmarks/methods.py``):
+    one critic, but an actor step at every update instead of every second."""

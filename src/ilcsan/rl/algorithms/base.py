@@ -62,14 +62,9 @@ class OffPolicyAlgorithm:
 
     @classmethod
     def check(cls, config: RunConfig) -> None:
-        """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with: the refusals
-        declared by the algorithm itself (SAC: TD3's methods), then a method chosen for an actor it needs not to be,
-        then those declared by the actor's normalisation and the loss terms (:meth:`~ilcsan.methods.Declared.check`)."""
-        methods.declared("algorithm", config.algorithm).check(config.task, config.td3)
-        methods.check_methods(config.td3, config.actor.network)
-        for method in (methods.declared("normalization", config.actor.normalization),
-                       *methods.selected(config.td3, ("loss_term",))):
-            method.check(config.task, config.td3)
+        """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with: the refusals its
+        declaration and the run's methods declare (:func:`ilcsan.methods.check_run`)."""
+        methods.check_run(config.task, config.algorithm, config.actor, config.td3)
 
     @classmethod
     def policy_delay(cls, td3: TrainingProtocol) -> int:

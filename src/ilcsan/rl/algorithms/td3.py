@@ -38,9 +38,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ... import methods
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
-from ...config import RunConfig, TrainingProtocol
+from ...config import TrainingProtocol
 from ..adam import adam_
 from ..methods import Exploration, Method, MethodContext, TargetActor, exploration_method, target_actor_method
 from .base import OffPolicyAlgorithm
@@ -52,12 +51,6 @@ class TD3(OffPolicyAlgorithm):
 
     smoothing = True
     """Target policy smoothing: noise on the target action."""
-
-    @classmethod
-    def check(cls, config: RunConfig) -> None:
-        super().check(config)
-        for method in methods.selected(config.td3, methods.TD3_SELECTORS):
-            method.check(config.task, config.td3)
 
     @classmethod
     def policy_delay(cls, td3: TrainingProtocol) -> int:

@@ -197,11 +197,14 @@ class NoisySAN(Exploration):
         return self.module.penalty(parameters[0], batch["penalty_weights"])
 
     def seed_state(self, index: int) -> dict[str, Any]:
-        return {"parameters": slice_state(self.module, index, 1), "optimizer": self.adam.seed_state(index, 1),
+        return {"module": slice_state(self.module, index, 1), "optimizer": self.adam.seed_state(index, 1),
                 "streams": self.module.stream_state(index)}
 
     def load_seed_states(self, states) -> None:
-        load_state(self.module, [state["parameters"] for state in states], "decoder noise scale")
+        """A seed's state as :meth:`seed_state` gives it; its module state (parameters and buffers) may also be under
+        ``parameters``, the key of checkpoints written before it was named for what it holds."""
+        load_state(self.module, [state.get("module", state.get("parameters")) for state in states],
+                   "decoder noise scale")
         self.adam.load_seed_states([state["optimizer"] for state in states])
         for index, state in enumerate(states):
             self.module.load_stream_state(index, state["streams"])
