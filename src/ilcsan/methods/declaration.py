@@ -77,6 +77,9 @@ class Declared:
     spiking_reason: ClassVar[str] = ""
     weight: ClassVar[str] = ""
     """A loss term's setting that weighs it (on when above 0)."""
+    own_exploration: ClassVar[str] = ""
+    """An algorithm that explores by its own means and has no target actor: why, in words. It refuses every target
+    actor and exploration method but the first registered of each (the paper's, which stands for "none" there)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..errors import UserError
 from ..settings import setting
-from .declaration import TD3_SELECTORS, Declared
+from .declaration import Declared
 
 
 class SAC(Declared):
@@ -19,19 +18,7 @@ class SAC(Declared):
     step_cost = 1.4
     """A training step's time with SAC over TD3's (ILC-SAN, Hopper, compiled, one thread; ``benchmarks/methods.py``):
     its actor steps at every update, with twice the output populations and both critics in the actor's loss."""
-
-    @classmethod
-    def check(cls, task: str, td3) -> None:
-        """SAC explores with its own stochastic actor and has no target actor: it refuses any other choice of those
-        (the first registered of each kind, the paper's, stands for "none")."""
-        from . import declared, default  # the registry imports this module
-
-        for kind in TD3_SELECTORS:
-            method = declared(kind, getattr(td3, kind))
-            if method.name != default(kind):
-                raise UserError(f"{method.option()} is a method for TD3 and DDPG; SAC explores with its own "
-                                f"stochastic actor and has no target actor: drop {method.flag()}, or use "
-                                "--algorithm td3")
+    own_exploration = "SAC explores with its own stochastic actor and has no target actor"
 
     @dataclass(frozen=True)
     class Settings:
