@@ -20,6 +20,7 @@ class CareBN(Declared):
     spiking_only = True
     spiking_reason = "it normalises a spiking actor's synaptic currents"
     training = "ilcsan.rl.methods.care_bn:CareBN"
+    actor_layer = "ilcsan.snn.normalization:CareBatchNorm"
     step_cost = 1.15
     """A training step's time with CaRe-BN over a plain one (ILC-SAN, Hopper, compiled, one thread): 1.05–1.11 for the
     step itself (``benchmarks/methods.py --methods plain,care-bn``: the batch statistics in the actor's loss and the

@@ -77,6 +77,9 @@ class Declared:
     spiking_reason: ClassVar[str] = ""
     weight: ClassVar[str] = ""
     """A loss term's setting that weighs it (on when above 0)."""
+    actor_layer: ClassVar[str | type] = ""
+    """A normalisation's module of one synaptic layer, ``Class(ensemble, width, v_th)``, as ``module:Class`` (imported
+    when an actor is built) or the class itself; "" for a normalisation that adds none."""
     own_exploration: ClassVar[str] = ""
     """An algorithm that explores by its own means and has no target actor: why, in words. It refuses every target
     actor and exploration method but the first registered of each (the paper's, which stands for "none" there)."""
@@ -126,7 +129,17 @@ class Declared:
     @classmethod
     def training_class(cls) -> type:
         """The class of its training hooks, imported now when named by path."""
-        if not isinstance(cls.training, str):
-            return cls.training
-        module, _, name = cls.training.partition(":")
-        return getattr(importlib.import_module(module), name)
+        return _imported(cls.training)
+
+    @classmethod
+    def actor_layer_class(cls) -> type | None:
+        """The class of a normalisation's :attr:`actor_layer`, imported now when named by path; None if it has none."""
+        return _imported(cls.actor_layer) if cls.actor_layer else None
+
+
+def _imported(spec: str | type) -> type:
+    """``spec`` itself, or the class its ``module:Class`` names, imported now."""
+    if not isinstance(spec, str):
+        return spec
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)

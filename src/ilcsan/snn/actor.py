@@ -12,9 +12,10 @@ intra-layer module and decoder operations.
 Every tensor has a leading ensemble dimension K (seeds trained together): observations (K, B, N) →
 actions (K, B, M).
 
-With ``normalization="care-bn"`` (:mod:`ilcsan.snn.normalization`) each synaptic layer's current W^l S + b^l is
-normalised before its neurons (on the output layer before the intra-layer current is added), with the running
-statistics by default or, for the actor's loss, the batch's own (``norm_statistics`` of :meth:`SpikingActor.run`).
+With a normalisation (``normalization="care-bn"``: :mod:`ilcsan.snn.normalization`, the layer its declaration in
+:mod:`ilcsan.methods` names) each synaptic layer's current W^l S + b^l is normalised before its neurons (on the output
+layer before the intra-layer current is added), with the running statistics by default or, for the actor's loss, the
+batch's own (``norm_statistics`` of :meth:`SpikingActor.run`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from .. import methods
 from ..compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ..config import ENGINES, INTRA_MASKS, ActorConfig
 from ..errors import UserError
@@ -35,7 +37,7 @@ from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 from .intra import IntraLayerConnections
 from .neurons import neuron_model
 from .noise import NeuronNoise
-from .normalization import CareBatchNorm, NormStatistics, batch_statistics, pool_statistics
+from .normalization import NormStatistics, batch_statistics, pool_statistics
 from .output import ActorOutput
 from .reference import run_reference
 
@@ -97,8 +99,8 @@ class SpikingActor(_Actor):
         self.decoder = PopulationDecoder(ensemble, action_dim, config.population_out, config.decoder,
                                          config.alpha_v_li)
         self.neuron = neuron_model(config)
-        self.norms = (nn.ModuleList(CareBatchNorm(ensemble, width, config.v_th) for width in sizes[1:])
-                      if config.normalization == "care-bn" else None)
+        norm = methods.declared("normalization", config.normalization).actor_layer_class()
+        self.norms = nn.ModuleList(norm(ensemble, width, config.v_th) for width in sizes[1:]) if norm else None
         self.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:
