@@ -105,10 +105,9 @@ def relative_cost(td3: Any) -> float:
 def check_run(task: str, algorithm: str, actor: Any, td3: Any) -> None:
     """:class:`~ilcsan.errors.UserError` for a run on ``task`` that its declarations cannot train: the algorithm's own
     refusals first (an algorithm with its ``own_exploration``, SAC, refuses TD3's target actors and explorations),
-    then a method chosen for a deep actor (DAN) that needs a spiking one
-    (``spiking_only``), then the refusals of the actor's normalisation, the loss terms, the target actor and the
-    exploration (:meth:`Declared.check`). ``actor``: an :class:`~ilcsan.config.ActorConfig` (its ``network`` and
-    ``normalization``); ``td3``: the training settings."""
+    then a method chosen for a deep actor (DAN) that needs a spiking one (``spiking_only``), then the refusals of the
+    actor's normalisation, the loss terms, the target actor and the exploration (:meth:`Declared.check`). ``actor``:
+    an :class:`~ilcsan.config.ActorConfig` (its ``network`` and ``normalization``); ``td3``: the training settings."""
     trainer = declared("algorithm", algorithm)
     for kind in TD3_SELECTORS if trainer.own_exploration else ():
         method = declared(kind, getattr(td3, kind))
