@@ -144,7 +144,8 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
             try:
                 methods.check_run(task, base.algorithm, base.actor, base.td3)
             except UserError as error:
-                raise UserError(f"table {spec.name}, row {row.slug}, {task}: {error}") from None
+                raise UserError(f"table {spec.name}, row {row.slug}, {task}: {error} (a grid's row takes a "
+                                f"training setting in its td3 table: `ilcsan reproduce path/to/grid.toml`)") from None
             for seed in seeds:
                 directory = out / spec.name / task_folder(task) / row.slug / f"seed{seed}"
                 runs.append(GridRun(task, row, seed, directory, dataclasses.replace(base, seeds=(seed,))))
