@@ -128,10 +128,10 @@ def grid_from_dict(data: Mapping[str, Any], source: str = "grid") -> TableSpec:
         raise UserError(f"{source}: caption must be a string, got {caption!r}")
     tasks, rows = _tasks(data["tasks"], source), _rows(data["rows"], source)
     for index, row in enumerate(rows):
+        actor, td3 = actor_config(row.preset, **row.overrides), td3_config_class()(**row.td3)
         for task in tasks:
             try:
-                methods.check_run(task, row.algorithm, actor_config(row.preset, **row.overrides),
-                                  td3_config_class()(**row.td3))
+                methods.check_run(task, row.algorithm, actor, td3)
             except UserError as error:
                 raise UserError(f"{source}: rows[{index}] on {task}: {error}") from None
     return TableSpec(
