@@ -403,8 +403,15 @@ def test_list_of_a_table_shows_it_as_the_options_shrink_it(capsys, monkeypatch):
     assert code == 0 and "rows (2 to run)" in out and "ilc-san+care-bn" not in out
     assert "protocol: 3 seeds × 20,000 steps" in out and "1 tasks × 2 rows × 3 seeds = 6 (120,000 steps)" in out
     shrunk = dataclasses.replace(TABLES["algorithms"], rows=TABLES["algorithms"].rows[1:3], seeds=3, steps=20_000)
-    assert f"estimate: ≈ {estimate_hours(shrunk, 100.0, os.cpu_count() or 1):,.1f} h on this machine" in out
+    cores = os.cpu_count() or 1
+    assert f"estimate: ≈ {estimate_hours(shrunk, 100.0, cores):,.1f} h on this machine ({cores} runs at a time)" in out
     assert run_cli(capsys, "reproduce", "algorithms", "--list", "--rows", "nope")[0] == 2
+    # --workers: the estimate for that many runs at a time (6 runs one after another take about 6 times as long)
+    code, out, _ = run_cli(capsys, "reproduce", "algorithms", "--list", "--seeds", "1-3", "--steps", "20000",
+                           "--rows", "ilc-san+ddpg,ilc-san+sac", "--workers", "1")
+    one = estimate_hours(shrunk, 100.0, 1)
+    assert code == 0 and f"estimate: ≈ {one:,.1f} h on this machine (1 run at a time)" in out
+    assert one > estimate_hours(shrunk, 100.0, 6) * 5
 
 
 def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch):

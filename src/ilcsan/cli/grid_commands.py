@@ -43,7 +43,7 @@ def cmd_reproduce(args) -> int:
     if args.list:  # a named table as --seeds, --steps, --tasks, --rows shrink it
         specs = ([expand_grid(table_to_reproduce(args.table)[0], args.out, options_from_args(args)).spec]
                  if args.table else None)
-        print(list_tables(specs))
+        print(list_tables(specs, cores=args.workers))
         return 0
     if not args.table:
         raise UserError(f"name a table to reproduce ({', '.join(TABLES)}) or a grid file (.toml); "

@@ -124,8 +124,8 @@ def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:
                  f"({runs * spec.steps:,} steps)")
     here = estimate_hours(spec, steps_per_second, cores)
     cluster = estimate_hours(spec, steps_per_second, EXAMPLE_CLUSTER_CORES)
-    lines.append(f"  estimate: {_format_hours(here)} on this machine ({cores} cores), {_format_hours(cluster)} on "
-                 f"{EXAMPLE_CLUSTER_CORES} cores")
+    lines.append(f"  estimate: {_format_hours(here)} on this machine ({cores} run{'s' * (cores != 1)} at a time), "
+                 f"{_format_hours(cluster)} on {EXAMPLE_CLUSTER_CORES} cores")
     return "\n".join(lines)
 
 
