@@ -144,6 +144,10 @@ def test_the_beyond_table_prints_what_later_papers_published_under_ours_for_its_
     assert "NoisySAN (Chen et al., arXiv 2403.04162): no results table" in published
     intra = render_markdown(build_table(collect_runs(tmp_path), "intra"))
     assert "Published by" not in intra
+    assert "CaRe-BN" not in markdown, "each table names only its own rows' papers"
+    algorithms = render_markdown(build_table(collect_runs(tmp_path), "algorithms"))
+    assert "CaRe-BN (Xu et al., ICLR 2026, arXiv 2509.23791): its results table was in none" in algorithms
+    assert "unverified" in algorithms and "NoisySAN" not in algorithms
 
 
 def test_the_beyond_rows_that_ran_the_papers_actors_show_its_table_perf_cells_but_not_its_apr(tmp_path: Path) -> None:

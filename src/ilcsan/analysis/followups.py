@@ -12,6 +12,9 @@ prints it under our table, never inside its cells.
   with Proxy Target, which the paper does not report.
 - **NoisySAN** (Chen, Peng, Huang, Tian, arXiv 2403.04162): its results table was in none of the sources we could
   read (SpikingJelly's example code has none); nothing is transcribed.
+- **CaRe-BN** (Xu, Shi, Dong, Huang, Yu, ICLR 2026, arXiv 2509.23791): the stored copies of its arXiv pages end
+  before its results, and its code's README (``xuzijie32/CaRe-BN``) has no table; nothing is transcribed. The
+  report names the one figure a third-party summary of it gives for Hopper, marked as unverified.
 """
 
 from __future__ import annotations
@@ -65,5 +68,9 @@ FOLLOW_UPS: dict[str, tuple[PublishedSet, ...]] = {"beyond": (PROXY_TARGET,)}
 NOT_FOUND: dict[str, tuple[str, ...]] = {
     "beyond": ("NoisySAN (Chen et al., arXiv 2403.04162): no results table in any source we could read; "
                "nothing transcribed.",),
+    "algorithms": ("CaRe-BN (Xu et al., ICLR 2026, arXiv 2509.23791): its results table was in none of the sources "
+                   "we could read; nothing transcribed. A third-party summary of it gives Hopper 3586 for a "
+                   "PopSAN-style CLIF actor with CaRe-BN and TD3 (mean of 5 seeds' best average returns over "
+                   "1 000 000 steps, no std): unverified, and another actor and budget than this grid's.",),
 }
 """Papers whose numbers the report would print but that we could not read, said so under the table."""
