@@ -508,6 +508,32 @@ def test_one_report_of_several_folders_counts_each_run_once(tmp_path: Path, caps
     assert "needs --out" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
+def test_report_of_some_seeds_compares_rows_on_the_same_seeds(tmp_path: Path, capsys) -> None:
+    """``ilcsan report DIR --seeds 1-2``: only those seeds' runs in the cells, the title names them; seeds that
+    match no run are one line and exit code 2."""
+    from ilcsan.cli import main
+
+    for seed, value in enumerate([1000.0, 2000.0, 3000.0, 40.0]):
+        intra_run(tmp_path, "Hopper", "intra", seed, [value])
+    intra_run(tmp_path, "Hopper", "self", 2, [2500.0])
+    assert main(["report", str(tmp_path), "--seeds", "1-2", "--out", str(tmp_path / "out")]) == 0
+    assert "5 run(s) found below" in capsys.readouterr().out
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    assert markdown.startswith("# ILC-SAN reproduction report: seeds 1–2 only\n")
+    assert f"{format_stat(2500.0, float(np.std([2000.0, 3000.0], ddof=1)))}** (n=2)" in markdown  # seeds 0, 3 left out
+    assert "**2500** (n=1) · paper 3512" in markdown
+    assert (tmp_path / "out" / "report.tex").read_text().startswith("% ILC-SAN reproduction report: seeds 1–2 only;")
+    assert main(["report", str(tmp_path), "--seeds", "7,9", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "no runs of seeds 7,9" in err and "seeds 0, 1, 2, 3" in err and len(err.strip().splitlines()) == 1
+
+
+def test_seed_text_writes_consecutive_seeds_as_ranges() -> None:
+    from ilcsan.analysis.report import seed_text
+
+    assert seed_text({5, 0, 1, 2}) == "0–2, 5" and seed_text([3]) == "3" and seed_text(range(10)) == "0–9"
+
+
 def test_report_without_table_groups_runs_by_their_tags(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])
     make_run(tmp_path, "Hopper", 0, "D_fr", [700], table="decode", row="fr", preset="popsan")

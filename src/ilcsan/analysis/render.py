@@ -25,6 +25,8 @@ from .reward_tables import Cell, RowResult, TableResult
 DIAGNOSTIC_HEADERS = {"saturated_actions": "Saturated", "action_spread": "Action spread",
                       "frozen_output_neurons": "Frozen outputs",
                       "surrogate_active": "Surrogate window", "mean_abs_preaction": "Mean abs(O)"}
+REPORT_TITLE = "ILC-SAN reproduction report"
+"""The heading of report.md (and first comment of report.tex)."""
 
 
 def _decimals(value: float) -> int:
@@ -78,7 +80,7 @@ def _md_apr(row: RowResult, n_tasks: int) -> str:
 
 
 def render_markdown(results: TableResult | Sequence[TableResult], skipped: Sequence[SkippedRun] = (),
-                    title: str = "ILC-SAN reproduction report") -> str:
+                    title: str = REPORT_TITLE) -> str:
     """The tables as Markdown, with the statistics explained, missing cells and skipped runs listed."""
     results = [results] if isinstance(results, TableResult) else list(results)
     lines = [f"# {title}", ""]
@@ -271,10 +273,11 @@ def _tex_apr(row: RowResult, n_tasks: int) -> str:
     return value
 
 
-def render_latex(results: TableResult | Sequence[TableResult], skipped: Sequence[SkippedRun] = ()) -> str:
+def render_latex(results: TableResult | Sequence[TableResult], skipped: Sequence[SkippedRun] = (),
+                 title: str = REPORT_TITLE) -> str:
     """The tables as LaTeX ``table*`` environments with booktabs rules (needs ``\\usepackage{booktabs}``)."""
     results = [results] if isinstance(results, TableResult) else list(results)
-    lines = ["% ILC-SAN reproduction report; requires \\usepackage{booktabs}",
+    lines = [f"% {title}; requires \\usepackage{{booktabs}}",
              "% Cells: mean $\\pm$ std over seeds (ddof=1) of each run's max average reward; -- = no runs."]
     for result in results:
         label = f"tab:ours-{result.name}" if result.name else "tab:ours"

@@ -15,7 +15,7 @@ This module ties them together and names the public API of the report.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 
 from ..files import atomic_write_text
@@ -23,7 +23,7 @@ from ..paper.layouts import TableSpec
 from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_diagnostics
 from .collect import RunFolders, RunRecord, RunScan, SkippedRun, collect_runs, folders_of, read_run, scan_runs
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
-from .render import format_stat, latex_escape, render_csv, render_latex, render_markdown
+from .render import REPORT_TITLE, format_stat, latex_escape, render_csv, render_latex, render_markdown
 from .reward_tables import Cell, RowResult, TableResult, build_table, report_tables
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
@@ -39,9 +39,10 @@ REPORT_FILES: dict[str, str] = {
 
 def write_report(directories: RunFolders, out_dir: str | Path | None = None,
                  table: str | TableSpec | None = None, collapse_steps: Sequence[int] = (),
-                 collapse_return: float = COLLAPSE_RETURN) -> dict[str, Path]:
+                 collapse_return: float = COLLAPSE_RETURN, seeds: Collection[int] | None = None) -> dict[str, Path]:
     """Scan ``directories`` (one folder or several) for runs and write ``report.md``, ``report.tex``, ``report.csv``
-    and ``curves.png`` into ``out_dir`` (default: the folder, when it is one), each atomically. With
+    and ``curves.png`` into ``out_dir`` (default: the folder, when it is one), each atomically. With ``seeds``, only
+    the runs of those seeds count (rows compared on the same seeds), and the title says so. With
     ``collapse_steps``, report.md also counts each row's seeds below ``collapse_return`` at those steps
     (:mod:`.collapse`) and ``diagnostics.png`` draws their actors' diagnostics up to the last of them.
 
@@ -52,9 +53,11 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
         raise ValueError("a report of several folders needs out_dir")
     scan = scan_runs(roots)
     out = Path(out_dir) if out_dir is not None else roots[0]
-    results = report_tables(scan.runs, table)
+    runs = scan.runs if seeds is None else [run for run in scan.runs if run.seed in seeds]
+    results = report_tables(runs, table)
     paths = {kind: out / name for kind, name in REPORT_FILES.items()}
-    markdown = render_markdown(results, scan.skipped)
+    title = REPORT_TITLE + ("" if seeds is None else f": seeds {seed_text(seeds)} only")
+    markdown = render_markdown(results, scan.skipped, title)
     if collapse_steps:
         groups = collapse_groups(results)
         steps = sorted(collapse_steps)
@@ -65,10 +68,21 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
         paths["diagnostics"] = plot_diagnostics(groups, out / DIAGNOSTICS_FIGURE, steps[-1], steps[-1],
                                                 collapse_return)
     atomic_write_text(paths["markdown"], markdown)
-    atomic_write_text(paths["latex"], render_latex(results, scan.skipped))
+    atomic_write_text(paths["latex"], render_latex(results, scan.skipped, title))
     atomic_write_text(paths["csv"], render_csv(results))
     draw_curves(results, paths["curves"])
     return paths
+
+
+def seed_text(seeds: Collection[int]) -> str:
+    """Seeds in words, runs of consecutive ones as ranges: {0, 1, 2, 5} → ``0–2, 5``."""
+    parts: list[tuple[int, int]] = []
+    for seed in sorted(set(seeds)):
+        if parts and parts[-1][1] == seed - 1:
+            parts[-1] = (parts[-1][0], seed)
+        else:
+            parts.append((seed, seed))
+    return ", ".join(str(low) if low == high else f"{low}–{high}" for low, high in parts)
 
 
 def collapse_groups(results: Sequence[TableResult]) -> dict[str, list[RunRecord]]:

@@ -120,6 +120,9 @@ def _add_report_command(subparsers) -> None:
                              "training method; runs of another table's grid in the row with their settings and "
                              "method")
     report.add_argument("--out", default=None, help="where to write report.md/.tex/.csv and curves.png")
+    report.add_argument("--seeds", default=None,
+                        help="only the runs of these seeds, e.g. 1-3 or 0,2,5: rows compared on the same seeds "
+                             "(default: every run found; the report's title names the seeds)")
     report.add_argument("--collapse", default=None, metavar="STEPS",
                         help="comma-separated steps, e.g. 30000,50000: also count each row's seeds still in the "
                              "collapsed start there (return below --collapse-return), with 95 %% intervals and "

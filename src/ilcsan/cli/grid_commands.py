@@ -89,14 +89,21 @@ def cmd_report(args) -> int:
     scan = scan_runs(folders)
     if not scan.runs:
         raise UserError(_no_runs_message(where, scan.skipped))
-    table = report_layout(args.table, scan.runs)
+    seeds = parse_seeds(args.seeds) if getattr(args, "seeds", None) else None
+    runs = scan.runs if seeds is None else [run for run in scan.runs if run.seed in seeds]
+    if not runs:
+        found = sorted({run.seed for run in scan.runs})
+        raise UserError(f"no runs of seeds {args.seeds} below {where}; the runs there have seeds "
+                        f"{', '.join(map(str, found))}")
+    table = report_layout(args.table, runs)
     collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
     try:
-        paths = write_report(folders, args.out, table, collapse_steps, args.collapse_return)
+        paths = write_report(folders, args.out, table, collapse_steps, args.collapse_return, seeds)
     except OSError as error:  # --out is a file, read-only, full, ...
         raise UserError(f"cannot write the report to {args.out or where}: {error.strerror or error}; "
                         "choose another --out") from None
     print(f"ilcsan report: {len(scan.runs)} run(s) found below {where}"
+          + (f", {len(runs)} of seeds {args.seeds} reported" if seeds is not None else "")
           + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
     for kind, path in paths.items():
         print(f"  {kind:<8} {path}")
