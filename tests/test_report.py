@@ -178,6 +178,36 @@ def test_the_transcribed_follow_up_numbers_reproduce_their_printed_average_gains
             assert gain == pytest.approx(published.gains[label], abs=0.01), label
 
 
+def test_each_cell_beside_the_paper_is_compared_in_plain_words(tmp_path: Path) -> None:
+    """Within the published std, above or below it by how much (in its units), on how many seeds; not comparable
+    below the paper's budget or while a run trains."""
+    from ilcsan.analysis.render import paper_comparison
+
+    paper = {task: build_table([], "perf").cell("ilc-san-pop-det", task).paper for task in ("Hopper", "Ant")}
+    hopper, ant = paper["Hopper"], paper["Ant"]
+    for seed, score in enumerate([hopper.mean + 0.5 * hopper.std, hopper.mean - 1.5 * hopper.std]):
+        make_run(tmp_path, "Hopper", seed, "ILC-SAN (E_pop_det)", [score] * 100, table="perf", row="ilc-san-pop-det")
+    for seed in (0, 1):
+        make_run(tmp_path, "Ant", seed, "ILC-SAN (E_pop_det)", [ant.mean - 2 * ant.std] * 100, table="perf",
+                 row="ilc-san-pop-det")
+    make_run(tmp_path, "Walker2d", 0, "ILC-SAN (E_pop_det)", [5000.0] * 20, table="perf", row="ilc-san-pop-det")
+    make_run(tmp_path, "HalfCheetah", 0, "ILC-SAN (E_pop_det)", [9000.0] * 100, table="perf",
+             row="ilc-san-pop-det", finished=False)
+    table = build_table(collect_runs(tmp_path), "perf")
+    words = {task: paper_comparison(table.cell("ilc-san-pop-det", task)) for task in table.tasks}
+    # the mean of +0.5 and −1.5 stds is 0.5 std below the paper's; only the first seed is within its std
+    assert words["Hopper"] == (f"within the paper's std (−{0.5 * hopper.std:.0f}, 0.5 of its std); "
+                               "1 of 2 seeds within the paper's mean ± std")
+    assert words["Ant"] == (f"below the paper's mean by {2 * ant.std:.0f} (2.0 of its std); "
+                            "0 of 2 seeds within the paper's mean ± std")
+    assert words["Walker2d"] == "not comparable: a run trained 200 000 steps, the paper's protocol 1 000 000"
+    assert words["HalfCheetah"] == "not comparable yet: 1 of 1 runs still training"
+    assert words["Humanoid"] is None  # no runs
+    markdown = render_markdown(table)
+    assert f"- Ant · ILC-SAN (E\\_pop\\_det): {format_stat(ant.mean - 2 * ant.std, 0.0)}" in markdown
+    assert markdown.count("\n- ") >= 4 and "Beside the paper" in markdown
+
+
 def test_missing_cells_say_so_and_still_show_the_paper(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [3500])
     result = build_table(collect_runs(tmp_path), "intra")

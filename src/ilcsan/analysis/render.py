@@ -3,7 +3,8 @@
 Every cell shows our value and, where the paper has one for that (table, row, task), the published
 value beside it: ``3583 ± 86 (n=3) · paper 3583 ± 86``; a cell without runs shows ``—``; the best mean
 of each column and the best APR are in bold. Under a table, one line per cell whose runs differ in code, precision,
-libraries or CPU (their ``provenance.json``, :mod:`ilcsan.runs.provenance`).
+libraries or CPU (their ``provenance.json``, :mod:`ilcsan.runs.provenance`), and one line in plain words per cell
+beside a published value (:func:`paper_comparison`).
 """
 
 from __future__ import annotations
@@ -119,12 +120,42 @@ def _md_table(result: TableResult) -> list[str]:
     if missing:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
         lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
+    comparisons = [(row, cell, paper_comparison(cell)) for row in result.rows for cell in row.cells]
+    comparisons = [(row, cell, words) for row, cell, words in comparisons if words]
+    if comparisons:
+        lines += ["", "Beside the paper (a cell's mean against the published mean ± std; seeds: how many of ours "
+                  "scored within that range):", ""]
+        lines += [f"- {cell.task} · {_md_escape(row.label)}: {_our_stat(cell)} (n={cell.n}) against "
+                  f"{_paper_stat(cell)}: {words}" for row, cell, words in comparisons]
     lines.append("")
     notes = provenance_notes(result)
     if notes:
         lines += ["Provenance (each run's `provenance.json` and contact forces; ×k: how many runs have a segment so):",
                   "", *(f"- {_md_escape(note)}" for note in notes), ""]
     return lines + _md_follow_ups(result) + _md_seeds(result)
+
+
+def paper_comparison(cell: Cell) -> str | None:
+    """A cell beside its published value in plain words: *not comparable* when a run trained fewer steps than the
+    paper's protocol (:data:`STEPS`) or is still training; else *within the paper's std* when
+    |ours − paper| ≤ the published std, or *above*/*below* its mean by how much (also in units of that std); and
+    on how many seeds ours scored within the published mean ± std. None without runs or a published value."""
+    if cell.mean is None or cell.paper is None:
+        return None
+    fewest = min(run.steps_done for run in cell.runs)
+    if fewest < STEPS:
+        return f"not comparable: a run trained {_steps(fewest)} steps, the paper's protocol {_steps(STEPS)}"
+    if cell.running:
+        return f"not comparable yet: {cell.running} of {cell.n} runs still training"
+    paper, difference = cell.paper, cell.mean - cell.paper.mean
+    amount = f"{abs(difference):.{_decimals(paper.mean)}f}"  # as precise as the published mean
+    units = f"{abs(difference) / paper.std:.1f} of its std" if paper.std else ""
+    if abs(difference) <= paper.std:
+        words = f"within the paper's std ({'+' if difference >= 0 else '−'}{amount}, {units})"
+    else:
+        words = f"{'above' if difference > 0 else 'below'} the paper's mean by {amount}" + (f" ({units})" * bool(units))
+    inside = sum(abs(score - paper.mean) <= paper.std for score in cell.scores)
+    return f"{words}; {inside} of {cell.n} seeds within the paper's mean ± std"
 
 
 def provenance_notes(result: TableResult) -> list[str]:
