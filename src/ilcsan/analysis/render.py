@@ -149,11 +149,12 @@ def paper_comparison(cell: Cell) -> str | None:
         return f"not comparable yet: {cell.running} of {cell.n} runs still training"
     paper, difference = cell.paper, cell.mean - cell.paper.mean
     amount = f"{abs(difference):.{_decimals(paper.mean)}f}"  # as precise as the published mean
-    units = f"{abs(difference) / paper.std:.1f} of its std" if paper.std else ""
+    units = [f"{abs(difference) / paper.std:.1f} of its std"] if paper.std else []
     if abs(difference) <= paper.std:
-        words = f"within the paper's std ({'+' if difference >= 0 else '−'}{amount}, {units})"
+        words = f"within the paper's std ({', '.join([('+' if difference >= 0 else '−') + amount, *units])})"
     else:
-        words = f"{'above' if difference > 0 else 'below'} the paper's mean by {amount}" + (f" ({units})" * bool(units))
+        words = " ".join([f"{'above' if difference > 0 else 'below'} the paper's mean by {amount}",
+                          *(f"({unit})" for unit in units)])
     inside = sum(abs(score - paper.mean) <= paper.std for score in cell.scores)
     return f"{words}; {inside} of {cell.n} seeds within the paper's mean ± std"
 
