@@ -547,7 +547,10 @@ def test_report_of_some_seeds_compares_rows_on_the_same_seeds(tmp_path: Path, ca
         intra_run(tmp_path, "Hopper", "intra", seed, [value])
     intra_run(tmp_path, "Hopper", "self", 2, [2500.0])
     assert main(["report", str(tmp_path), "--seeds", "1-2", "--out", str(tmp_path / "out")]) == 0
-    assert "5 run(s) found below" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "5 run(s) found below" in out and ", 3 of seeds 1-2 reported" in out
+    # the terminal also says how each cell stands beside the paper (here: too short to compare)
+    assert "  Hopper · I_self: 2500 (n=1) against 3512 ± 146: not comparable: a run trained 10 000 steps" in out
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert markdown.startswith("# ILC-SAN reproduction report: seeds 1–2 only\n")
     assert f"{format_stat(2500.0, float(np.std([2000.0, 3000.0], ddof=1)))}** (n=2)" in markdown  # seeds 0, 3 left out

@@ -120,19 +120,23 @@ def _md_table(result: TableResult) -> list[str]:
     if missing:
         total = sum(len(row.cells) for row in result.rows if row.runnable)
         lines.append(f"Missing cells (no runs): {len(missing)} of {total}: {_missing_text(result)}.")
-    comparisons = [(row, cell, paper_comparison(cell)) for row in result.rows for cell in row.cells]
-    comparisons = [(row, cell, words) for row, cell, words in comparisons if words]
+    comparisons = comparison_lines(result, _md_escape)
     if comparisons:
         lines += ["", "Beside the paper (a cell's mean against the published mean ± std; seeds: how many of ours "
-                  "scored within that range):", ""]
-        lines += [f"- {cell.task} · {_md_escape(row.label)}: {_our_stat(cell)} (n={cell.n}) against "
-                  f"{_paper_stat(cell)}: {words}" for row, cell, words in comparisons]
+                  "scored within that range):", "", *(f"- {line}" for line in comparisons)]
     lines.append("")
     notes = provenance_notes(result)
     if notes:
         lines += ["Provenance (each run's `provenance.json` and contact forces; ×k: how many runs have a segment so):",
                   "", *(f"- {_md_escape(note)}" for note in notes), ""]
     return lines + _md_follow_ups(result) + _md_seeds(result)
+
+
+def comparison_lines(result: TableResult, escape=lambda text: text) -> list[str]:
+    """One line per cell with runs and a published value: ``Hopper · ILC-SAN: 3104 ± 1086 (n=10) against
+    3583 ± 86: below …`` (:func:`paper_comparison`); ``escape`` the row labels for the output's format."""
+    return [f"{cell.task} · {escape(row.label)}: {_our_stat(cell)} (n={cell.n}) against {_paper_stat(cell)}: {words}"
+            for row in result.rows for cell in row.cells if (words := paper_comparison(cell))]
 
 
 def paper_comparison(cell: Cell) -> str | None:

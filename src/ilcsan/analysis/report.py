@@ -23,7 +23,7 @@ from ..paper.layouts import TableSpec
 from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_diagnostics
 from .collect import RunFolders, RunRecord, RunScan, SkippedRun, collect_runs, folders_of, read_run, scan_runs
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
-from .render import REPORT_TITLE, format_stat, latex_escape, render_csv, render_latex, render_markdown
+from .render import REPORT_TITLE, comparison_lines, format_stat, latex_escape, render_csv, render_latex, render_markdown
 from .reward_tables import Cell, RowResult, TableResult, build_table, report_tables
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
@@ -101,6 +101,6 @@ __all__ = [
     "write_report", "REPORT_FILES",
     "RunRecord", "RunScan", "SkippedRun", "scan_runs", "collect_runs", "read_run",
     "Cell", "RowResult", "TableResult", "build_table", "report_tables",
-    "format_stat", "latex_escape", "render_markdown", "render_latex", "render_csv",
+    "format_stat", "latex_escape", "render_markdown", "render_latex", "render_csv", "comparison_lines",
     "smooth", "smoothing_window", "curve", "plot_curves", "draw_curves",
 ]

@@ -79,7 +79,7 @@ def parse_steps(text: str) -> tuple[int, ...]:
 def cmd_report(args) -> int:
     """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     from ..analysis.collect import folders_of, scan_runs
-    from ..analysis.report import write_report
+    from ..analysis.report import comparison_lines, report_tables, write_report
     from ..experiments.grid import report_layout
 
     folders = folders_of(args.directory)
@@ -107,6 +107,10 @@ def cmd_report(args) -> int:
           + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
     for kind, path in paths.items():
         print(f"  {kind:<8} {path}")
+    comparisons = [line for result in report_tables(runs, table) for line in comparison_lines(result)]
+    if comparisons:
+        print("beside the paper (our mean against the published mean ± std):")
+        print("\n".join(f"  {line}" for line in comparisons))
     return 0
 
 
