@@ -200,6 +200,11 @@ def test_each_cell_beside_the_paper_is_compared_in_plain_words(tmp_path: Path) -
                                "1 of 2 seeds within the paper's mean ± std")
     assert words["Ant"] == (f"below the paper's mean by {2 * ant.std:.0f} (2.0 of its std); "
                             "0 of 2 seeds within the paper's mean ± std")
+    hopper_cell = table.cell("ilc-san-pop-det", "Hopper")
+    near = dataclasses.replace(hopper_cell, runs=hopper_cell.runs[:1])  # one seed, 0.5 std above
+    assert paper_comparison(near).endswith("0.5 of its std); 1 of 1 seed within the paper's mean ± std")
+    close = dataclasses.replace(near, runs=(dataclasses.replace(near.runs[0], best_return=hopper.mean + 4.3),))
+    assert f"(+4, {4.3 / hopper.std:.2f} of its std)" in paper_comparison(close)  # two decimals below 0.1
     assert words["Walker2d"] == "not comparable: a run trained 200 000 steps, the paper's protocol 1 000 000"
     assert words["HalfCheetah"] == "not comparable yet: 1 of 1 runs still training"
     assert words["Humanoid"] is None  # no runs

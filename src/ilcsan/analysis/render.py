@@ -153,14 +153,15 @@ def paper_comparison(cell: Cell) -> str | None:
         return f"not comparable yet: {cell.running} of {cell.n} runs still training"
     paper, difference = cell.paper, cell.mean - cell.paper.mean
     amount = f"{abs(difference):.{_decimals(paper.mean)}f}"  # as precise as the published mean
-    units = [f"{abs(difference) / paper.std:.1f} of its std"] if paper.std else []
+    ratio = abs(difference) / paper.std if paper.std else None
+    units = [] if ratio is None else [f"{ratio:.{2 if ratio < 0.1 else 1}f} of its std"]
     if abs(difference) <= paper.std:
         words = f"within the paper's std ({', '.join([('+' if difference >= 0 else '−') + amount, *units])})"
     else:
         words = " ".join([f"{'above' if difference > 0 else 'below'} the paper's mean by {amount}",
                           *(f"({unit})" for unit in units)])
     inside = sum(abs(score - paper.mean) <= paper.std for score in cell.scores)
-    return f"{words}; {inside} of {cell.n} seeds within the paper's mean ± std"
+    return f"{words}; {inside} of {cell.n} seed{'s' * (cell.n != 1)} within the paper's mean ± std"
 
 
 def provenance_notes(result: TableResult) -> list[str]:
