@@ -53,8 +53,7 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
         raise ValueError("a report of several folders needs out_dir")
     scan = scan_runs(roots)
     out = Path(out_dir) if out_dir is not None else roots[0]
-    runs = scan.runs if seeds is None else [run for run in scan.runs if run.seed in seeds]
-    results = report_tables(runs, table)
+    results = report_tables(runs_of_seeds(scan.runs, seeds), table)
     paths = {kind: out / name for kind, name in REPORT_FILES.items()}
     title = REPORT_TITLE + ("" if seeds is None else f": seeds {seed_text(seeds)} only")
     markdown = render_markdown(results, scan.skipped, title)
@@ -72,6 +71,11 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
     atomic_write_text(paths["csv"], render_csv(results))
     draw_curves(results, paths["curves"])
     return paths
+
+
+def runs_of_seeds(runs: Sequence[RunRecord], seeds: Collection[int] | None) -> list[RunRecord]:
+    """The runs of ``seeds`` (all of them when None), in their order."""
+    return list(runs) if seeds is None else [run for run in runs if run.seed in seeds]
 
 
 def seed_text(seeds: Collection[int]) -> str:
@@ -98,7 +102,7 @@ def collapse_groups(results: Sequence[TableResult]) -> dict[str, list[RunRecord]
 
 
 __all__ = [
-    "write_report", "REPORT_FILES",
+    "write_report", "REPORT_FILES", "runs_of_seeds",
     "RunRecord", "RunScan", "SkippedRun", "scan_runs", "collect_runs", "read_run",
     "Cell", "RowResult", "TableResult", "build_table", "report_tables",
     "format_stat", "latex_escape", "render_markdown", "render_latex", "render_csv", "comparison_lines",

@@ -79,7 +79,7 @@ def parse_steps(text: str) -> tuple[int, ...]:
 def cmd_report(args) -> int:
     """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     from ..analysis.collect import folders_of, scan_runs
-    from ..analysis.report import comparison_lines, report_tables, write_report
+    from ..analysis.report import comparison_lines, report_tables, runs_of_seeds, write_report
     from ..experiments.grid import report_layout
 
     folders = folders_of(args.directory)
@@ -90,7 +90,7 @@ def cmd_report(args) -> int:
     if not scan.runs:
         raise UserError(_no_runs_message(where, scan.skipped))
     seeds = parse_seeds(args.seeds) if getattr(args, "seeds", None) else None
-    runs = scan.runs if seeds is None else [run for run in scan.runs if run.seed in seeds]
+    runs = runs_of_seeds(scan.runs, seeds)
     if not runs:
         found = sorted({run.seed for run in scan.runs})
         raise UserError(f"no runs of seeds {args.seeds} below {where}; the runs there have seeds "
