@@ -16,6 +16,7 @@ This module ties them together and names the public API of the report.
 from __future__ import annotations
 
 from collections.abc import Collection, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..files import atomic_write_text
@@ -51,8 +52,22 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
     roots = folders_of(directories)
     if out_dir is None and len(roots) != 1:
         raise ValueError("a report of several folders needs out_dir")
-    scan = scan_runs(roots)
     out = Path(out_dir) if out_dir is not None else roots[0]
+    return write_scanned_report(scan_runs(roots), out, table, collapse_steps, collapse_return, seeds).paths
+
+
+@dataclass(frozen=True)
+class WrittenReport:
+    """What :func:`write_scanned_report` wrote (``paths`` by kind) and the tables it wrote them from."""
+
+    paths: dict[str, Path]
+    results: list[TableResult]
+
+
+def write_scanned_report(scan: RunScan, out: Path, table: str | TableSpec | None = None,
+                         collapse_steps: Sequence[int] = (), collapse_return: float = COLLAPSE_RETURN,
+                         seeds: Collection[int] | None = None) -> WrittenReport:
+    """:func:`write_report` of runs already scanned, into the folder ``out``."""
     results = report_tables(runs_of_seeds(scan.runs, seeds), table)
     paths = {kind: out / name for kind, name in REPORT_FILES.items()}
     title = REPORT_TITLE + ("" if seeds is None else f": seeds {seed_text(seeds)} only")
@@ -70,7 +85,7 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
     atomic_write_text(paths["latex"], render_latex(results, scan.skipped, title))
     atomic_write_text(paths["csv"], render_csv(results))
     draw_curves(results, paths["curves"])
-    return paths
+    return WrittenReport(paths, results)
 
 
 def runs_of_seeds(runs: Sequence[RunRecord], seeds: Collection[int] | None) -> list[RunRecord]:
@@ -102,7 +117,7 @@ def collapse_groups(results: Sequence[TableResult]) -> dict[str, list[RunRecord]
 
 
 __all__ = [
-    "write_report", "REPORT_FILES", "runs_of_seeds",
+    "write_report", "write_scanned_report", "WrittenReport", "REPORT_FILES", "runs_of_seeds",
     "RunRecord", "RunScan", "SkippedRun", "scan_runs", "collect_runs", "read_run",
     "Cell", "RowResult", "TableResult", "build_table", "report_tables",
     "format_stat", "latex_escape", "render_markdown", "render_latex", "render_csv", "comparison_lines",

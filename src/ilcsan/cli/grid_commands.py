@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 from .. import load
 from ..config import RunConfig, described_fields, td3_config_class
@@ -79,7 +80,7 @@ def parse_steps(text: str) -> tuple[int, ...]:
 def cmd_report(args) -> int:
     """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
     from ..analysis.collect import folders_of, scan_runs
-    from ..analysis.report import comparison_lines, report_tables, runs_of_seeds, write_report
+    from ..analysis.report import comparison_lines, runs_of_seeds, write_scanned_report
     from ..experiments.grid import report_layout
 
     folders = folders_of(args.directory)
@@ -98,16 +99,17 @@ def cmd_report(args) -> int:
     table = report_layout(args.table, runs)
     collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
     try:
-        paths = write_report(folders, args.out, table, collapse_steps, args.collapse_return, seeds)
+        written = write_scanned_report(scan, Path(args.out) if args.out else folders[0], table, collapse_steps,
+                                       args.collapse_return, seeds)
     except OSError as error:  # --out is a file, read-only, full, ...
         raise UserError(f"cannot write the report to {args.out or where}: {error.strerror or error}; "
                         "choose another --out") from None
     print(f"ilcsan report: {len(scan.runs)} run(s) found below {where}"
           + (f", {len(runs)} of seeds {args.seeds} reported" if seeds is not None else "")
           + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
-    for kind, path in paths.items():
+    for kind, path in written.paths.items():
         print(f"  {kind:<8} {path}")
-    comparisons = [line for result in report_tables(runs, table) for line in comparison_lines(result)]
+    comparisons = [line for result in written.results for line in comparison_lines(result)]
     if comparisons:
         print("beside the paper (our mean against the published mean ± std):")
         print("\n".join(f"  {line}" for line in comparisons))
