@@ -44,3 +44,23 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path: Pat
         files.atomic_write_file(target, fail)
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["curves.png"]
+
+
+def test_json_files_read_back_as_written_with_short_lists_on_one_line(tmp_path: Path) -> None:
+    """config.json and the other JSON files: what is read back equals what was written (keys sorted, tuples as
+    lists), and a list of numbers, or of lists of numbers (a bf16 run's product shapes), is one line."""
+    import json
+
+    data = {"b": {"hidden": (256, 256), "empty": [], "none": {}}, "a": 1.5, "name": "ILC-SAN", "flag": None,
+            "matmul_path": {"bf16_products": [[[1, 5, 3760], [1, 256, 3760]], [[2, 100, 256], [2, 256, 256]]]},
+            "segments": [{"step": 0, "cpu": "Intel"}, {"step": 400000, "cpu": "AMD"}]}
+    path = tmp_path / "config.json"
+    files.atomic_write_json(path, data)
+    text = path.read_text()
+    assert json.loads(text) == json.loads(json.dumps(data)), "the file reads back as the data"
+    lines = text.splitlines()
+    assert '    "hidden": [256, 256],' in lines
+    assert '      [[1, 5, 3760], [1, 256, 3760]],' in lines, "each product's shapes on a line of their own"
+    keys = [line.split('"')[1] for line in lines if line.startswith('  "')]
+    assert keys == sorted(keys) == ["a", "b", "flag", "matmul_path", "name", "segments"]
+    assert text.endswith("}\n") and '"step": 400000' in text, "objects inside lists keep one key per line"

@@ -78,7 +78,28 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 
 def atomic_write_json(path: Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+    atomic_write_text(path, json_text(data) + "\n")
+
+
+def json_text(value: Any, indent: int = 0) -> str:
+    """``value`` as JSON, keys sorted, objects one key per line (two spaces a level), and a list of numbers or
+    strings, or of such lists, on one line: hidden widths ``[256, 256]`` and a matrix product's shapes
+    ``[[1, 5, 3760], [1, 256, 3760]]`` read as one value each."""
+    if isinstance(value, dict) and value:
+        inner = " " * (indent + 2)
+        items = [f"{inner}{json.dumps(str(key))}: {json_text(item, indent + 2)}" for key, item in sorted(value.items())]
+        return "{\n" + ",\n".join(items) + "\n" + " " * indent + "}"
+    if isinstance(value, (list, tuple)) and value and not _flat(value):
+        inner = " " * (indent + 2)
+        return "[\n" + ",\n".join(inner + json_text(item, indent + 2) for item in value) + "\n" + " " * indent + "]"
+    return json.dumps(value)
+
+
+def _flat(items: list | tuple) -> bool:
+    """Whether ``items`` holds only scalars, or only lists of scalars: written on one line."""
+    def scalar(item: Any) -> bool:
+        return not isinstance(item, (dict, list, tuple))
+    return all(scalar(item) or (isinstance(item, (list, tuple)) and all(map(scalar, item))) for item in items)
 
 
 def atomic_savez(path: Path, **arrays: Any) -> None:
