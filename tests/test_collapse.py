@@ -59,6 +59,9 @@ def test_collapse_rows_count_seeds_below_the_threshold_at_each_step():
     assert short.best == (40, 800, 39)
     table = collapse_markdown(collapse_rows({"a": runs, "b": runs[:2]}, steps=(30_000,)), steps=(30_000,))
     assert "| a | 2/3 (67 %" in table and "a vs b: at 30 000: p = " in table
+    young = [record(3, [39, 150])]  # a row still running: no evaluation at 30 000 yet
+    table = collapse_markdown(collapse_rows({"a": runs, "young": young}, steps=(30_000,)), steps=(30_000,))
+    assert "- a vs young: no test: one of them has no evaluation at these steps yet" in table
 
 
 def test_the_diagnostics_figure_is_drawn(tmp_path):

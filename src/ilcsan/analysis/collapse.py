@@ -117,7 +117,8 @@ def collapse_markdown(rows: Sequence[CollapseRow], steps: Sequence[int], thresho
             tests = ", ".join(f"at {step:,}: p = {fisher_exact(first.counts[step], second.counts[step]):.3f}"
                               .replace(",", " ", 1) for step in steps
                               if first.counts[step][1] and second.counts[step][1])
-            lines.append(f"- {first.label} vs {second.label}: {tests}")
+            lines.append(f"- {first.label} vs {second.label}: "
+                         + (tests or "no test: one of them has no evaluation at these steps yet"))
     return "\n".join(lines) + "\n"
 
 
