@@ -23,7 +23,6 @@ evaluation) goes to ``OUT/<table>/logs/``.
 from __future__ import annotations
 
 import collections
-import math
 import os
 import time
 from collections.abc import Callable, Mapping
@@ -32,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from ..analysis.report import write_report
+from ..analysis.reward_tables import seed_std
 from .backends import Backend, LocalBackend, make_backend, termination_as_ctrl_c
 from .grid import Grid, GridRun
 from .jobs import Job, JobOutcome, RunState, balance_jobs, format_seeds, group_jobs, max_seeds_per_job, run_state
@@ -180,13 +180,13 @@ def _emit(on_event: EventHook | None, kind: str, job: Job | None) -> None:
 
 
 def _scores(outcome: JobOutcome) -> str:
-    """The seeds' best evaluations: ``best 812.3 ± 40.1 over 3 seeds``."""
+    """The seeds' best evaluations: ``best 812.3 ± 40.1 over 3 seeds (sample std)``, as the report gives them
+    (:func:`~ilcsan.analysis.reward_tables.seed_std`, ddof = 1)."""
     bests = [result["best_return"] for result in outcome.results if result.get("best_return") is not None]
     if not bests:
         return "no evaluation"
-    mean = sum(bests) / len(bests)
-    std = math.sqrt(sum((value - mean) ** 2 for value in bests) / len(bests))
-    return f"best {mean:.1f}" + (f" ± {std:.1f} over {len(bests)} seeds" if len(bests) > 1 else "")
+    mean, std = sum(bests) / len(bests), seed_std(bests)
+    return f"best {mean:.1f}" + (f" ± {std:.1f} over {len(bests)} seeds (sample std)" if std is not None else "")
 
 
 def _summarise(grid: Grid, summary: dict[str, Any], finished: int, started: float, write: bool,
