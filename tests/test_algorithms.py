@@ -14,7 +14,7 @@ from torch.distributions.transforms import TanhTransform
 
 import ilcsan
 import ilcsan.errors
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import PRESETS, RunConfig, TD3Config, actor_config
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
 from ilcsan.rl.training import train
 
@@ -136,6 +136,28 @@ def test_compiled_update_equals_the_eager_update(cls):
             torch.testing.assert_close(ours, theirs, atol=2e-5, rtol=1e-4)
     program = compiled.update_step if cls is SAC else compiled.delayed_step  # DDPG: an actor step every update
     assert program.direct
+
+
+@pytest.mark.parametrize("preset", list(PRESETS))
+@pytest.mark.parametrize("cls", [DDPG, SAC])
+def test_every_preset_trains_and_deploys_with_ddpg_and_sac(cls, preset):
+    """Each actor of the paper and its baselines under DDPG and SAC: two updates move every parameter of the actor
+    (spiking presets through their surrogate gradients), the losses are finite, and the deployed actor gives one
+    action per state inside the action bounds."""
+    small = SMALL.get(preset, SMALL["ilc-san"])
+    agent = cls(actor_config(preset, **small), TD3Config(critic_hidden=(16, 16)), 3, 2, SCALE, OFFSET, seeds=(0, 1))
+    before = [parameter.clone() for parameter in agent.actor.parameters()]
+    for update in range(2):
+        losses = agent.update(_batch(2, seed=update))
+    assert math.isfinite(float(losses["critic_loss"])) and math.isfinite(float(losses["actor_loss"]))
+    unchanged = [index for index, (old, new) in enumerate(zip(before, agent.actor.parameters(), strict=True))
+                 if torch.equal(old, new)]
+    assert not unchanged, f"{preset}: actor parameters {unchanged} did not move"
+    states = _batch(2)["obs"]
+    with torch.no_grad():
+        actions = agent.deployable_actor()(states)
+    assert actions.shape == (2, 8, 2)
+    assert torch.all((actions - torch.tensor(OFFSET)).abs() <= torch.tensor(SCALE))
 
 
 # ---------------------------------------------------------------------------- runs, files, CLI
