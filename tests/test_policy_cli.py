@@ -80,7 +80,7 @@ def test_checkpoint_loads_as_the_last_actor(trained_run):
 
 def test_evaluate_command(trained_run, capsys):
     code, out, _ = run_cli(capsys, "evaluate", str(trained_run), "--episodes", "2")
-    assert code == 0 and "average return" in out and "Pendulum-v1" in out
+    assert code == 0 and "average return" in out and "Pendulum-v1" in out and "(std over the episodes; min" in out
 
 
 def test_evaluate_plays_a_deploy_bundle_in_the_numpy_runtime(trained_run, tmp_path, capsys):

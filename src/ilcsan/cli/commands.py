@@ -34,7 +34,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                                        progress=sys.stderr.isatty(), contact_forces=args.contact_forces)
     episodes = f"{args.episodes} episode" + ("s" if args.episodes != 1 else "")
     print(f"{task} · {actor.label} · {episodes}: average return "
-          f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (min {np.min(returns):.1f}, max {np.max(returns):.1f}), "
+          f"{np.mean(returns):.1f} ± {np.std(returns):.1f} (std over the episodes; min {np.min(returns):.1f}, "
+          f"max {np.max(returns):.1f}), "
           f"average length {np.mean(lengths):.0f}")
     if getattr(actor, "inferences", 0):  # the numpy runtime counts every accumulate it performs
         print(f"synaptic operations per action: {actor.total_sop / actor.inferences:.0f} on average over "
