@@ -19,7 +19,7 @@ from ilcsan.cli import main
 from ilcsan.errors import UserError
 from ilcsan.experiments.backends import LocalBackend, RayBackend, ray_node_address, termination_as_ctrl_c
 from ilcsan.experiments.coordinator import run_grid
-from ilcsan.experiments.estimate import estimate_hours, list_tables, row_step_cost
+from ilcsan.experiments.estimate import estimate_hours, list_tables, method_step_cost, run_step_cost
 from ilcsan.experiments.grid import GridOptions, expand_grid
 from ilcsan.experiments.grid_files import load_grid
 from ilcsan.experiments.jobs import (
@@ -183,8 +183,9 @@ def test_small_helpers():
 def test_estimate_hours_runs_in_waves_of_cores(monkeypatch):
     from ilcsan.experiments import estimate
 
-    monkeypatch.setattr(estimate, "TASK_STEP_COST", {})  # every task costs Hopper's
-    # intra: 4 tasks x 8 rows x 10 seeds = 320 runs of 1e6 steps; at 100 steps/s a run takes 1e4 s
+    monkeypatch.setattr(estimate, "ACTOR_STEP_COST", {"ilc-san": {"Hopper": 1.0}, "dan": {"Hopper": 0.6}})
+    # every task costs its actor's Hopper step; intra: 4 tasks x 8 rows x 10 seeds = 320 runs of 1e6 steps; at
+    # 100 steps/s a run takes 1e4 s
     assert estimate_hours("intra", 100.0, 2) == pytest.approx(160 * 1e4 / 3600)
     assert estimate_hours("intra", 100.0, 320) == pytest.approx(1e4 / 3600)
     assert estimate_hours("intra", 100.0, 1000) == pytest.approx(1e4 / 3600), "idle cores do not help"
@@ -199,20 +200,45 @@ def test_a_run_costs_its_task_factor_times_its_row_factor(monkeypatch):
     an Ant run decides (3e4 s); on one core all 80 runs per task add up: 80 · (3 + 1 + 1 + 1) · 1e4 s."""
     from ilcsan.experiments import estimate
 
-    monkeypatch.setattr(estimate, "TASK_STEP_COST", {"Ant": 3.0})
-    assert estimate.task_step_cost("Ant") == 3.0 and estimate.task_step_cost("MyTask") == 1.0
+    monkeypatch.setattr(estimate, "ACTOR_STEP_COST", {"ilc-san": {"Hopper": 1.0, "Ant": 3.0}})
+    assert estimate.actor_step_cost("ilc-san", "Ant") == 3.0 and estimate.actor_step_cost("ilc-san", "MyTask") == 1.0
     assert estimate_hours("intra", 100.0, 320) == pytest.approx(3 * 1e4 / 3600)
     assert estimate_hours("intra", 100.0, 1) == pytest.approx(80 * 6 * 1e4 / 3600)
     assert "Ant 3, HalfCheetah 1, Hopper 1, Walker2d 1" in list_tables([TABLES["intra"]], 100.0, 1)
 
 
+def test_each_actor_costs_its_own_measured_step_on_each_task(monkeypatch):
+    """perf on 560 cores (a core per run): DAN on Humanoid at 0.9 of ILC-SAN's Hopper step, ILC-SAN on Humanoid at
+    6, PopSAN (measured) at 5 and MDC-SAN, Akl (not measured) at ILC-SAN's: the slowest run decides, 6; on one core
+    every run adds up, each at its own actor's cost on its task (10 seeds per cell)."""
+    from ilcsan.experiments import estimate
+
+    monkeypatch.setattr(estimate, "ACTOR_STEP_COST", {"ilc-san": {"Hopper": 1.0, "Humanoid": 6.0},
+                                                      "popsan": {"Hopper": 0.8, "Humanoid": 5.0},
+                                                      "dan": {"Hopper": 0.5, "Humanoid": 0.9}})
+    spec = dataclasses.replace(TABLES["perf"], tasks=("Hopper", "Humanoid"))
+    assert estimate_hours(spec, 100.0, 560) == pytest.approx(6.0 * 1e4 / 3600)
+    ilc_san_rows = 5  # mdc-san, akl and the three ILC-SAN encoders cost ILC-SAN's
+    per_seed = 0.5 + 0.9 + 0.8 + 5.0 + ilc_san_rows * (1.0 + 6.0)
+    assert estimate_hours(spec, 100.0, 1) == pytest.approx(10 * per_seed * 1e4 / 3600)
+    listing = list_tables([spec], 100.0, 1)
+    assert "dan time per step (× ILC-SAN's on Hopper): Hopper 0.5, Humanoid 0.9" in listing
+    assert "popsan time per step (× ILC-SAN's on Hopper): Hopper 0.8, Humanoid 5" in listing
+    assert "mdc-san, akl: not measured, estimated as ilc-san" in listing
+
+
 def test_each_row_of_a_grid_costs_what_its_method_measured():
-    """beyond on one core: 5 seeds of ILC-SAN (1), Proxy Target with K = 3 (1 + 3 · 0.6), NoisySAN (2), DAN (0.6)."""
-    rows = {row.slug: row_step_cost(row) for row in TABLES["beyond"].rows}
-    assert rows == pytest.approx({"ilc-san": 1.0, "ilc-san+proxy": 2.8, "ilc-san+noisy": 2.0, "dan": 0.6})
-    assert estimate_hours("beyond", 100.0, 1) == pytest.approx(5 * (1 + 2.8 + 2.0 + 0.6) * 2000 / 3600)
+    """beyond on one core: 5 seeds of ILC-SAN (1), Proxy Target with K = 3 (1 + 3 · 0.6), NoisySAN (2), DAN (its own
+    Hopper step, whose training adds nothing)."""
+    from ilcsan.experiments import estimate
+
+    dan = estimate.actor_step_cost("dan", "Hopper")
+    rows = {row.slug: run_step_cost("Hopper", row) for row in TABLES["beyond"].rows}
+    assert rows == pytest.approx({"ilc-san": 1.0, "ilc-san+proxy": 2.8, "ilc-san+noisy": 2.0, "dan": dan})
+    assert method_step_cost(TABLES["beyond"].row("dan")) == 1.0
+    assert estimate_hours("beyond", 100.0, 1) == pytest.approx(5 * (1 + 2.8 + 2.0 + dan) * 2000 / 3600)
     assert estimate_hours("beyond", 100.0, 20) == pytest.approx(2.8 * 2000 / 3600)  # the slowest run decides
-    algorithms = {row.slug: row_step_cost(row) for row in TABLES["algorithms"].rows}  # the actor's normalisation too
+    algorithms = {row.slug: method_step_cost(row) for row in TABLES["algorithms"].rows}  # the actor's normalisation too
     assert algorithms == pytest.approx({"ilc-san": 1.0, "ilc-san+ddpg": 1.2, "ilc-san+sac": 1.4,
                                         "ilc-san+care-bn": 1.15})
 
@@ -433,7 +459,7 @@ def test_estimates_assume_the_setting_not_the_cpu(monkeypatch):
     assert f"ILCSAN_STEPS_PER_SECOND, default {estimate.DEFAULT_STEPS_PER_SECOND:g}" in footer
     from ilcsan.methods import noisysan, proxy_target
 
-    assert (f"DAN {estimate.DAN_STEP_COST:g}, Proxy Target 1 + {proxy_target.COST_PER_ITERATION:g}·K, "
+    assert (f"training: Proxy Target 1 + {proxy_target.COST_PER_ITERATION:g}·K, "
             f"NoisySAN {noisysan.NoisySAN.step_cost:g}") in footer
     monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "fast")
     with pytest.raises(UserError, match="ILCSAN_STEPS_PER_SECOND='fast' must be a positive number"):

@@ -111,7 +111,8 @@ def test_a_rows_methods_are_checked_on_each_task_of_the_grid_and_of_the_command(
 
 def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_follow(tmp_path) -> None:
     from ilcsan.analysis.reward_tables import _rows_by_configuration
-    from ilcsan.experiments.estimate import list_tables, row_step_cost
+    from ilcsan.experiments import estimate
+    from ilcsan.experiments.estimate import list_tables, run_step_cost
     from ilcsan.experiments.grid import expand_grid
     from ilcsan.methods import sac, td3
 
@@ -121,8 +122,9 @@ def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_f
     assert [row.algorithm for row in spec.rows] == ["td3", "sac", "ddpg"]
     assert {run.row.slug: run.config.algorithm for run in expand_grid(spec, tmp_path).runs} == {
         "td3": "td3", "sac": "sac", "ddpg": "ddpg"}
-    assert [row_step_cost(row) for row in spec.rows] == pytest.approx(
-        [1.0, sac.SAC.step_cost, td3.DDPG.step_cost * 0.6]), "DAN's 0.6 times DDPG's own cost"
+    dan_hopper = estimate.actor_step_cost("dan", "Hopper")
+    assert [run_step_cost("Hopper", row) for row in spec.rows] == pytest.approx(
+        [1.0, sac.SAC.step_cost, td3.DDPG.step_cost * dan_hopper]), "DAN's own step times DDPG's cost"
     assert sac.SAC.step_cost != 1.0 and td3.DDPG.step_cost != 1.0
     listing = list_tables([spec], 100.0, 1)
     assert re.search(r"sac +sac +preset=ilc-san algorithm=sac\n", listing)

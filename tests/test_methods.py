@@ -122,7 +122,7 @@ def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tm
     from ilcsan.analysis.collect import configuration_key
     from ilcsan.cli import build_parser
     from ilcsan.cli.train import build_run_config
-    from ilcsan.experiments.estimate import list_tables, row_step_cost
+    from ilcsan.experiments.estimate import list_tables, method_step_cost
     from ilcsan.experiments.grid_files import load_grid
     from ilcsan.paper.layouts import TABLES
 
@@ -138,7 +138,7 @@ def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tm
     grid.write_text('name = "toys"\ntasks = ["Pendulum-v1"]\n[[rows]]\nslug = "toy"\npreset = "ilc-san"\n'
                     'td3 = { exploration = "toy", toy_width = 0.2 }\n')
     row = load_grid(grid).rows[0]
-    assert row.td3 == {"exploration": "toy", "toy_width": 0.2} and row_step_cost(row) == 1.5
+    assert row.td3 == {"exploration": "toy", "toy_width": 0.2} and method_step_cost(row) == 1.5
 
     actor = actor_config("ilc-san").to_dict()
     narrow = configuration_key(actor, {"exploration": "toy", "toy_width": 0.2})

@@ -18,19 +18,18 @@ environment steps per second of one ILC-SAN run on Hopper with one torch thread 
 setting, not a property of the machine at hand: set the variable to the steps/s that ``ilcsan train --task Hopper
 --threads 1`` prints at its evaluations here."""
 
-DAN_STEP_COST = 0.6
-"""Time per environment step of a DAN run relative to ILC-SAN's (compiled, one thread, Hopper; ``benchmarks/speed.py``
-measures both on a machine)."""
-
-TASK_STEP_COST: dict[str, float] = {
-    "Hopper": 1.0, "HalfCheetah": 1.1, "Walker2d": 1.2, "InvertedDoublePendulum": 1.1, "BipedalWalker": 1.4,
-    "Ant": 2.5, "Humanoid": 6.3, "HumanoidStandup": 7.2,
+ACTOR_STEP_COST: dict[str, dict[str, float]] = {
+    "ilc-san": {"Hopper": 1.0, "HalfCheetah": 1.1, "Walker2d": 1.2, "InvertedDoublePendulum": 1.1,
+                "BipedalWalker": 1.4, "Ant": 2.5, "Humanoid": 6.3, "HumanoidStandup": 7.2},
+    "dan": {"Hopper": 0.6, "HalfCheetah": 0.6, "Walker2d": 0.6, "InvertedDoublePendulum": 0.6,
+            "BipedalWalker": 0.6, "Ant": 0.6, "Humanoid": 0.6, "HumanoidStandup": 0.6},
 }
-"""Time per environment step of one ILC-SAN seed on a task relative to Hopper's, at the paper's protocol (float32, one
-torch thread, evaluations included with episodes at their full length), as ``benchmarks/task_cost.py`` measured it
-(``benchmarks/RESULTS.md``: the median of three runs, rounded; the runs spread by up to ±0.4, HumanoidStandup ±1.2).
-Ratios hold across machines far better than steps/s do; the wide input populations of Ant (1 110 neurons) and Humanoid
-(3 760) make their products the dearest. A task not listed (a user's own) is assumed to cost what Hopper does."""
+"""Time per environment step of one seed of an actor preset on a task, relative to one ILC-SAN seed on Hopper, at the
+paper's protocol (TD3, float32, one torch thread, compiled, evaluations included with episodes at their full length),
+as ``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``: the median of its runs, rounded). Ratios hold
+across machines far better than steps/s do. The spiking actors' wide input populations (Ant 1 110 neurons, Humanoid
+3 760) make their products the dearest; DAN's cost follows its critic's. A preset not listed costs what ILC-SAN does
+on the same task; a task not listed (a user's own) what Hopper does for that preset."""
 
 EXAMPLE_CLUSTER_CORES = 64
 """The cluster size ``reproduce --list`` shows beside this machine."""
@@ -64,36 +63,43 @@ def steps_per_second_default() -> float:
     return value
 
 
-def row_step_cost(row: RowSpec) -> float:
-    """A row's time per environment step relative to plain ILC-SAN's (trained by TD3): DAN's is cheaper; the row's
-    algorithm, its actor's normalisation and its training methods multiply it by their declared
-    :meth:`~ilcsan.methods.Declared.relative_cost`."""
+def method_step_cost(row: RowSpec) -> float:
+    """What a row's training adds to its actor's time per step: the product of its algorithm's, its actor's
+    normalisation's and its training methods' declared :meth:`~ilcsan.methods.Declared.relative_cost` (1 for plain
+    TD3). DAN has no spiking normalisation or spiking-only method to pay for: only its algorithm counts."""
     td3 = td3_config_class()(**row.td3)
     algorithm = methods.declared("algorithm", row.algorithm).relative_cost(td3)
     if row.preset == "dan":
-        return algorithm * DAN_STEP_COST
+        return algorithm
     normalization = methods.declared("normalization", actor_config(row.preset, **row.overrides).normalization)
     return algorithm * normalization.relative_cost(td3) * methods.relative_cost(td3)
 
 
-def task_step_cost(task: str) -> float:
-    """A task's time per step relative to Hopper's (:data:`TASK_STEP_COST`; 1 for a task not measured)."""
-    return TASK_STEP_COST.get(task, 1.0)
+def actor_step_cost(preset: str | None, task: str) -> float:
+    """One seed's time per step of ``preset`` on ``task``, relative to ILC-SAN's on Hopper (:data:`ACTOR_STEP_COST`:
+    a preset not measured costs ILC-SAN's, a task not measured the preset's Hopper)."""
+    costs = ACTOR_STEP_COST.get(preset or "", ACTOR_STEP_COST["ilc-san"])
+    return costs.get(task, costs["Hopper"])
+
+
+def run_step_cost(task: str, row: RowSpec) -> float:
+    """A run's time per step relative to one ILC-SAN seed on Hopper: its actor's on its task times its training's."""
+    return actor_step_cost(row.preset, task) * method_step_cost(row)
 
 
 def estimate_hours(table: str | TableSpec, steps_per_second: float, cores: int) -> float:
     """Wall-clock hours to run a whole table on ``cores`` cores, one run per core at a time.
 
     A run takes ``steps × cost / steps_per_second`` seconds (``steps_per_second`` the speed of one ILC-SAN run on
-    Hopper on one core, evaluations included; ``cost`` its task's :func:`task_step_cost` times its row's
-    :func:`row_step_cost`); the runs are dealt longest first to the least busy core, and the estimate is the busiest
-    core's total (with equal runs: ceil(runs / cores) waves). Training the seeds of a cell together (as ``reproduce``
-    does) is faster in aggregate, so this is an upper estimate for that part.
+    Hopper on one core, evaluations included; ``cost`` its :func:`run_step_cost`); the runs are dealt longest first
+    to the least busy core, and the estimate is the busiest core's total (with equal runs: ceil(runs / cores) waves).
+    Training the seeds of a cell together (as ``reproduce`` does) is faster in aggregate, so this is an upper estimate
+    for that part.
     """
     spec = TABLES[table] if isinstance(table, str) else table
     if steps_per_second <= 0 or cores < 1:
         raise ValueError("steps_per_second must be positive and cores at least 1")
-    costs = sorted((task_step_cost(task) * row_step_cost(row) for task, row, _ in spec.runs()), reverse=True)
+    costs = sorted((run_step_cost(task, row) for task, row, _ in spec.runs()), reverse=True)
     loads = [0.0] * min(cores, max(1, len(costs)))
     for cost in costs:
         index = loads.index(min(loads))
@@ -115,7 +121,7 @@ def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:
     label_width = max(len(row.label) for row in spec.rows)
     lines = [f"{spec.name}: {spec.caption}",
              f"  tasks ({len(spec.tasks)}): {', '.join(spec.tasks)}",
-             f"  time per step (× Hopper's): {', '.join(f'{task} {task_step_cost(task):.2g}' for task in spec.tasks)}",
+             *_actor_cost_lines(spec),
              f"  rows ({len(spec.runnable_rows)} to run):"]
     lines += [f"    {row.slug:<{width}}  {row.label:<{label_width}}  {_row_switches(row)}" for row in spec.rows]
     lines.append(f"  protocol: {spec.seeds} seeds × {spec.steps:,} steps, {spec.eval_episodes} deterministic "
@@ -127,6 +133,19 @@ def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:
     lines.append(f"  estimate: {_format_hours(here)} on this machine ({cores} run{'s' * (cores != 1)} at a time), "
                  f"{_format_hours(cluster)} on {EXAMPLE_CLUSTER_CORES} cores")
     return "\n".join(lines)
+
+
+def _actor_cost_lines(spec: TableSpec) -> list[str]:
+    """One line per measured actor preset the table runs (its time per step on each task, × ILC-SAN's on Hopper),
+    and one naming those not measured (costed as ILC-SAN)."""
+    presets = dict.fromkeys(row.preset for row in spec.runnable_rows)
+    lines = [f"  {preset} time per step (× ILC-SAN's on Hopper): "
+             + ", ".join(f"{task} {actor_step_cost(preset, task):.2g}" for task in spec.tasks)
+             for preset in presets if preset in ACTOR_STEP_COST]
+    unmeasured = [preset for preset in presets if preset not in ACTOR_STEP_COST]
+    if unmeasured:
+        lines.append(f"  {', '.join(unmeasured)}: not measured, estimated as ilc-san")
+    return lines
 
 
 def _format_hours(hours: float) -> str:
@@ -147,9 +166,10 @@ def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: floa
     footer = (f"Estimates assume {speed:g} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
               f"evaluations included; the setting {STEPS_PER_SECOND_ENV}, default {DEFAULT_STEPS_PER_SECOND:g}: set it "
               "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
-              "a run's hours = steps × its task's cost × its row's cost / (steps/s) / 3600 (tasks relative to Hopper's "
-              "step, float32, as benchmarks/task_cost.py measured them; rows relative to ILC-SAN's step: DAN "
-              f"{DAN_STEP_COST:g}, {_method_costs()}; the algorithm's and methods' costs multiply), "
+              "a run's hours = steps × its actor's cost on its task × its training's cost / (steps/s) / 3600 (each "
+              "actor preset's time per step on each task relative to ILC-SAN's on Hopper, float32, as "
+              f"benchmarks/task_cost.py measured them; training: {_method_costs()}; the algorithm's and methods' "
+              "costs multiply), "
               "dealt longest first to the cores. Shrink a table with --seeds, --steps, --tasks, --rows; run it on a "
               "cluster with --backend ray --address HOST:PORT.")
     return "\n\n".join([*blocks, footer])
