@@ -21,12 +21,15 @@ setting, not a property of the machine at hand: set the variable to the steps/s 
 ACTOR_STEP_COST: dict[str, dict[str, float]] = {
     "ilc-san": {"Hopper": 1.0, "HalfCheetah": 1.1, "Walker2d": 1.2, "InvertedDoublePendulum": 1.1,
                 "BipedalWalker": 1.4, "Ant": 2.5, "Humanoid": 6.3, "HumanoidStandup": 7.2},
-    "dan": {"Hopper": 0.6, "HalfCheetah": 0.6, "Walker2d": 0.6, "InvertedDoublePendulum": 0.6,
-            "BipedalWalker": 0.6, "Ant": 0.6, "Humanoid": 0.6, "HumanoidStandup": 0.6},
+    "dan": {"Hopper": 0.55, "HalfCheetah": 0.52, "Walker2d": 0.59, "InvertedDoublePendulum": 0.57,
+            "BipedalWalker": 0.68, "Ant": 0.81, "Humanoid": 1.1, "HumanoidStandup": 1.2},
+    "popsan": {"Hopper": 1.0, "HalfCheetah": 1.1, "Walker2d": 1.1, "InvertedDoublePendulum": 0.95,
+               "BipedalWalker": 1.2, "Ant": 2.4, "Humanoid": 6.0, "HumanoidStandup": 5.9},
 }
 """Time per environment step of one seed of an actor preset on a task, relative to one ILC-SAN seed on Hopper, at the
 paper's protocol (TD3, float32, one torch thread, compiled, evaluations included with episodes at their full length),
-as ``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``: the median of its runs, rounded). Ratios hold
+as ``benchmarks/task_cost.py`` measured it (``benchmarks/RESULTS.md``: ILC-SAN the median of three runs, DAN and
+PopSAN one run beside ILC-SAN's, rounded). Ratios hold
 across machines far better than steps/s do. The spiking actors' wide input populations (Ant 1 110 neurons, Humanoid
 3 760) make their products the dearest; DAN's cost follows its critic's. A preset not listed costs what ILC-SAN does
 on the same task; a task not listed (a user's own) what Hopper does for that preset."""
