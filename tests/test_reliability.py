@@ -407,13 +407,44 @@ def test_disk_full_at_a_checkpoint_keeps_the_last_one_and_resumes_exactly(traine
     monkeypatch.setattr(directory, "atomic_torch_save", fills_up)
     out = tmp_path / "run"
     code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out)
-    assert_user_error(code, err, "step 300", "No space left on device", "last checkpoint is kept", "--resume")
+    kept = (f"ilcsan: error: step 300: cannot write to {out}: No space left on device; the checkpoint at step 150 is "
+            "kept: free some space, then continue with --resume")
+    assert assert_user_error(code, err) == kept
     assert safe_torch_load(out / "checkpoint.pt")["step"] == 150
+    # still full: the resumed run fails at the same write and names the checkpoint it resumed from
+    code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out, "--resume")
+    assert assert_user_error(code, err) == kept
     monkeypatch.setattr(directory, "atomic_torch_save", original)
     code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out, "--resume")
     assert code == 0, err
     assert eval_curve(out) == eval_curve(trained_run), "the resumed run equals the uninterrupted one"
     assert not list(out.rglob("*.tmp"))
+
+
+def test_disk_full_before_the_first_checkpoint_says_none_is_kept(trained_run, tmp_path, capsys, monkeypatch):
+    import ilcsan.runs.directory as directory
+
+    original = directory.atomic_torch_save
+
+    def full_for_checkpoints(path, obj):
+        if pathlib.Path(path).name == "checkpoint.pt":  # the first one is due at the first evaluation, step 150
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        original(path, obj)
+
+    monkeypatch.setattr(directory, "atomic_torch_save", full_for_checkpoints)
+    out = tmp_path / "run"
+    code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out)
+    assert assert_user_error(code, err) == (
+        f"ilcsan: error: step 150: cannot write to {out}: No space left on device; no checkpoint has been written "
+        "yet: free some space, then start again with --resume (from step 0)")
+    assert not (out / "checkpoint.pt").exists()
+    monkeypatch.setattr(directory, "atomic_torch_save", original)
+    code, _, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out)  # hence "with --resume": the folder holds metrics
+    assert_user_error(code, err, "already holds a run")
+    code, printed, err = cli(capsys, "train", *RUN_OPTIONS, "--out", out, "--resume")
+    assert code == 0, err
+    assert f"no checkpoint in {out} yet; starting from step 0" in printed + err
+    assert eval_curve(out) == eval_curve(trained_run), "started again from step 0, it equals an uninterrupted run"
 
 
 # ------------------------------------------------------------------------------------------------

@@ -104,14 +104,14 @@ def _seeds(tmp_path, count=3):
 
 def test_write_together_leaves_only_committed_checkpoints(tmp_path):
     seeds = _seeds(tmp_path)
-    write_together(seeds, [{"format": "ilcsan-checkpoint", "step": 10} for _ in seeds], step=10)
+    write_together(seeds, [{"format": "ilcsan-checkpoint", "step": 10} for _ in seeds], step=10, kept=None)
     assert [d.checkpoint_step() for d in seeds] == [10, 10, 10]
     assert not any(d.has_checkpoint(pending=True) for d in seeds)
 
 
 def test_an_interrupted_first_phase_is_undone(tmp_path):
     seeds = _seeds(tmp_path)
-    write_together(seeds, [{"format": "ilcsan-checkpoint", "step": 10} for _ in seeds], step=10)
+    write_together(seeds, [{"format": "ilcsan-checkpoint", "step": 10} for _ in seeds], step=10, kept=None)
     for directory in seeds[:2]:  # the crash came before seed 2 had its new checkpoint
         directory.write_checkpoint({"format": "ilcsan-checkpoint", "step": 20}, pending=True)
     finish_interrupted_commit(seeds)
@@ -121,7 +121,7 @@ def test_an_interrupted_first_phase_is_undone(tmp_path):
 
 def test_an_interrupted_second_phase_is_completed(tmp_path):
     seeds = _seeds(tmp_path)
-    write_together(seeds, [{"format": "ilcsan-checkpoint", "step": 10} for _ in seeds], step=10)
+    write_together(seeds, [{"format": "ilcsan-checkpoint", "step": 10} for _ in seeds], step=10, kept=None)
     seeds[0].write_checkpoint({"format": "ilcsan-checkpoint", "step": 20})  # renamed before the crash
     for directory in seeds[1:]:
         directory.write_checkpoint({"format": "ilcsan-checkpoint", "step": 20}, pending=True)

@@ -94,21 +94,33 @@ def as_arrays(values: dict[str, Any]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ commits on disk
+def kept_checkpoint(step: int | None) -> str:
+    """What a failed write leaves to continue from: the checkpoint committed at ``step``, or none yet (None). Without
+    one, starting again still needs --resume, which starts from step 0: the folder may hold the first evaluation's
+    metrics, which a start without it refuses to overwrite."""
+    if step is None:
+        return "no checkpoint has been written yet: free some space, then start again with --resume (from step 0)"
+    return f"the checkpoint at step {step} is kept: free some space, then continue with --resume"
+
+
 @contextlib.contextmanager
-def disk_errors(directory: RunDirectory, step: int):
-    """A full or failing disk while writing results: one clear line; the last checkpoint is kept."""
+def disk_errors(directory: RunDirectory, step: int, kept: int | None):
+    """A full or failing disk while writing results at ``step``: one clear line that says which checkpoint is kept
+    (``kept``: the step of the last one committed, None before the first; :func:`kept_checkpoint`)."""
     try:
         yield
     except OSError as error:
-        raise UserError(f"step {step}: cannot write to {directory.path}: {error.strerror or error}; the last "
-                        "checkpoint is kept: free some space, then continue with --resume") from None
+        raise UserError(f"step {step}: cannot write to {directory.path}: {error.strerror or error}; "
+                        f"{kept_checkpoint(kept)}") from None
 
 
-def write_together(directories: list[RunDirectory], states: list[dict[str, Any]], step: int) -> None:
-    """Write each seed's checkpoint; with several seeds first as pending files, then all renamed."""
+def write_together(directories: list[RunDirectory], states: list[dict[str, Any]], step: int,
+                   kept: int | None) -> None:
+    """Write each seed's checkpoint; with several seeds first as pending files, then all renamed. ``kept`` is the
+    step of the checkpoint already committed (None before the first), which a failed write leaves in place."""
     pending = len(directories) > 1
     for directory, state in zip(directories, states, strict=True):
-        with disk_errors(directory, step):
+        with disk_errors(directory, step, kept):
             directory.write_checkpoint(state, pending=pending)
     if pending:
         for directory in directories:
@@ -213,6 +225,9 @@ class TrainingCheckpoints:
         self.directories, self.log = directories, log
         self.segments: list[list[str]] = [[] for _ in directories]  # each seed's replay segments, in order
         self.checkpointed_total = 0  # replay inserts already written as segments
+        self.committed_step: int | None = None
+        """The step of the checkpoint on disk: the last one :meth:`save` committed or :meth:`restore` read; None
+        while there is none. A failed write says it is kept (:func:`disk_errors`)."""
 
     def write_configs(self, config: RunConfig, measured: dict[str, Any] | None = None) -> None:
         """Each seed's config.json (:meth:`RunConfig.for_seed`) when a new run starts, with ``measured`` (what
@@ -229,7 +244,7 @@ class TrainingCheckpoints:
             except RunFileError as error:
                 self.log(f"note: {directory.file(PROVENANCE)} is damaged ({error}); it starts again with this segment")
                 segments = []
-            with disk_errors(directory, segment["step"]):
+            with disk_errors(directory, segment["step"], self.committed_step):
                 directory.write_provenance(provenance.extend(segments, segment))
 
     def _record_budget(self, config: RunConfig, saved_steps: int) -> None:
@@ -244,14 +259,15 @@ class TrainingCheckpoints:
         """Segments, metrics, then the checkpoints (committed together), then result.json: a crash anywhere
         keeps the previous checkpoint, and result.json never says "finished" before the final checkpoint."""
         for index, directory in enumerate(self.directories):
-            with disk_errors(directory, run.step):
+            with disk_errors(directory, run.step, self.committed_step):
                 segment = run.replay.write_segment(directory, index, self.checkpointed_total)
                 if segment is not None:
                     self.segments[index].append(segment)
                 directory.write_metrics(run.evaluations[index])
         states = [{"format": CHECKPOINT_FORMAT, "version": FORMAT_VERSION, **run.seed_state(index, segments)}
                   for index, segments in enumerate(self.segments)]
-        write_together(self.directories, states, run.step)
+        write_together(self.directories, states, run.step, self.committed_step)
+        self.committed_step = run.step
         self.write_results(run)
         for directory, segments in zip(self.directories, self.segments, strict=True):
             directory.prune_replay_segments(segments)
@@ -259,12 +275,12 @@ class TrainingCheckpoints:
 
     def save_policy(self, index: int, state: dict[str, Any], step: int) -> None:
         """Seed ``index``'s deployable actor as ``policy.pt`` (after an evaluation better than all before)."""
-        with disk_errors(self.directories[index], step):
+        with disk_errors(self.directories[index], step, self.committed_step):
             self.directories[index].write_policy({"format": POLICY_FORMAT, "version": FORMAT_VERSION, **state})
 
     def write_results(self, run: CheckpointedRun) -> None:
         for directory, result in zip(self.directories, run.results(), strict=True):
-            with disk_errors(directory, run.step):
+            with disk_errors(directory, run.step, self.committed_step):
                 directory.write_result({key: value for key, value in result.items() if key != "directory"})
 
     def restore(self, run: CheckpointedRun, config: RunConfig, state_dim: int, action_dim: int) -> None:
@@ -292,6 +308,7 @@ class TrainingCheckpoints:
             run.replay.load_segments(directory, index, self.segments[index], state["replay"]["total"])
             directory.prune_replay_segments(self.segments[index])
         run.load_seed_states(states)
+        self.committed_step = steps.pop()
         for directory, rows in zip(self.directories, run.evaluations, strict=True):
             directory.write_metrics(rows)
         self.write_results(run)  # a crash may have come between the checkpoint and its result.json
