@@ -626,7 +626,8 @@ def test_plot_curves_one_panel_per_task(tmp_path: Path) -> None:
     # panels for the tasks that have runs only: HalfCheetah and Walker2d have none
     assert [axes.get_title() for axes in figure.axes] == ["Ant", "Hopper"]
     hopper = figure.axes[1]
-    assert sorted(line.get_label() for line in hopper.get_lines()) == ["I_intra", "No I_intra"]
+    curves = [line.get_label() for line in hopper.get_lines() if line.get_gid() != "paper"]  # not the paper's lines
+    assert sorted(curves) == ["I_intra", "No I_intra"]
     (intra_line,) = [line for line in hopper.get_lines() if line.get_label() == "I_intra"]
     # 12 evaluations: too short to smooth (smoothing_window), so the last point is the seeds' mean there
     assert intra_line.get_ydata()[-1] == pytest.approx(3000 + 50)
@@ -651,7 +652,7 @@ def test_write_report_writes_all_four_files(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3200])
     make_run(tmp_path, "Pendulum-v1", 0, "mine", [-300, -150])
     paths = write_report(tmp_path)
-    assert set(paths) == {"markdown", "latex", "csv", "curves"}
+    assert set(paths) == {"markdown", "latex", "csv", "comparison", "curves"}
     assert all(path.parent == tmp_path and path.exists() for path in paths.values())
     assert _is_png(paths["curves"])
     latex = paths["latex"].read_text()

@@ -4,7 +4,8 @@ Every cell shows our value and, where the paper has one for that (table, row, ta
 value beside it: ``3583 ± 86 (n=3) · paper 3583 ± 86``; a cell without runs shows ``—``; the best mean
 of each column and the best APR are in bold. Under a table, one line per cell whose runs differ in code, precision,
 libraries or CPU (their ``provenance.json``, :mod:`ilcsan.runs.provenance`), and one line in plain words per cell
-beside a published value (:func:`paper_comparison`).
+beside a published value (:func:`paper_comparison`); after each table, what the bootstrap can tell its rows apart
+(:mod:`.comparison`), also in ``comparison.csv`` (:func:`render_comparison_csv`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from ..paper.layouts import STEPS
 from ..runs.provenance import differences
 from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
 from .collect import SkippedRun
+from .comparison import Aggregate, Comparison, Interval, TableComparison
 from .followups import FOLLOW_UPS, NOT_FOUND
 from .reward_tables import Cell, RowResult, TableResult
 
@@ -81,14 +83,15 @@ def _md_apr(row: RowResult, n_tasks: int) -> str:
 
 
 def render_markdown(results: TableResult | Sequence[TableResult], skipped: Sequence[SkippedRun] = (),
-                    title: str = REPORT_TITLE) -> str:
-    """The tables as Markdown, with the statistics explained, missing cells and skipped runs listed."""
+                    title: str = REPORT_TITLE, comparisons: Sequence[TableComparison] = ()) -> str:
+    """The tables as Markdown, with the statistics explained, missing cells and skipped runs listed; ``comparisons``
+    (one per table, in the same order, or none) after their tables."""
     results = [results] if isinstance(results, TableResult) else list(results)
     lines = [f"# {title}", ""]
     if not results:
         lines += ["No runs found.", ""]
-    for result in results:
-        lines += _md_table(result)
+    for result, comparison in zip(results, comparisons or [None] * len(results), strict=True):
+        lines += _md_table(result, comparison)
     lines += [
         "Cell: max average reward, i.e. each seed run's best evaluation (mean return over its evaluation "
         "episodes), as mean ± std over seeds (sample std, ddof=1), n = number of seeds; bold = best of "
@@ -104,7 +107,7 @@ def render_markdown(results: TableResult | Sequence[TableResult], skipped: Seque
     return "\n".join(lines)
 
 
-def _md_table(result: TableResult) -> list[str]:
+def _md_table(result: TableResult, comparison: TableComparison | None = None) -> list[str]:
     heading = f"## Table `{result.name}`: {result.caption}" if result.name else f"## {result.caption}"
     header = ["Row", *result.tasks, "APR"]
     lines = [heading, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -125,11 +128,28 @@ def _md_table(result: TableResult) -> list[str]:
         lines += ["", "Beside the paper (a cell's mean against the published mean ± std; seeds: how many of ours "
                   "scored within that range):", "", *(f"- {line}" for line in comparisons)]
     lines.append("")
+    lines += _md_comparison(comparison) if comparison else []
     notes = provenance_notes(result)
     if notes:
         lines += ["Provenance (each run's `provenance.json` and contact forces; ×k: how many runs have a segment so):",
                   "", *(f"- {_md_escape(note)}" for note in notes), ""]
     return lines + _md_follow_ups(result) + _md_seeds(result)
+
+
+def _md_comparison(comparison: TableComparison) -> list[str]:
+    """The section on telling the table's rows apart (:mod:`.comparison`): what the statistics are, then one
+    sentence each."""
+    sentences = comparison.sentences(_md_escape)
+    if not sentences:
+        return []
+    return ["### Telling the rows apart", "",
+            f"{comparison.bootstrap.text}. Per row: the IQM and the mean over runs × tasks of its scores divided "
+            "by our DAN's mean on each task (the ratio the APR averages) or by the paper's published DAN mean. Per "
+            "pair: P(improvement), the chance that a run of one row scores above a run of the other on the same task, "
+            "averaged over tasks (0.5: even), and the APR on the same runs (100 %: even); *better*/*worse*: the "
+            "interval lies entirely above/below even. Runs are paired by seed: each task offers the seeds both rows "
+            "ran; every task with ≥ 2 of them is kept, each giving its first k, k the fewest among those tasks.", "",
+            *(f"- {sentence}" for sentence in sentences), ""]
 
 
 def comparison_lines(result: TableResult, escape=lambda text: text) -> list[str]:
@@ -372,6 +392,51 @@ def render_csv(results: TableResult | Sequence[TableResult]) -> str:
                 _csv_number(row.apr), "", int(row.best_apr), _csv_number(row.paper_apr), "", "", "",
             ])
     return buffer.getvalue()
+
+
+COMPARISON_COLUMNS: tuple[str, ...] = (
+    "table", "statistic", "row", "against", "estimate", "ci_low", "ci_high", "confidence", "verdict", "tasks",
+    "seeds_per_task", "seeds", "left_out", "note", "reps", "bootstrap_seed",
+)
+"""``comparison.csv``: one line per statistic of :mod:`.comparison` (``statistic`` iqm, mean,
+probability_of_improvement, apr or note; ``against`` the other row or the normaliser; ``seeds`` per task, e.g.
+``Ant:0 1 2;Hopper:0 1 2``; ``note`` why a statistic was not computed, or a note on the whole table)."""
+
+
+def render_comparison_csv(comparisons: Sequence[TableComparison]) -> str:
+    """Every table's :class:`~.comparison.TableComparison` in :data:`COMPARISON_COLUMNS`."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(COMPARISON_COLUMNS)
+    for comparison in comparisons:
+        settings = [comparison.bootstrap.reps, comparison.bootstrap.seed]
+        for item in comparison.aggregates:
+            for statistic, interval in (("iqm", item.iqm), ("mean", item.mean)):
+                writer.writerow([comparison.table, statistic, item.row, item.normaliser,
+                                 *_csv_interval(interval, None), *_csv_selection(item), *settings])
+        for item in comparison.comparisons:
+            writer.writerow([comparison.table, item.statistic, item.row, item.against,
+                             *_csv_interval(item.interval, item.verdict), *_csv_selection(item), *settings])
+        for note in comparison.notes:
+            blank = [""] * (COMPARISON_COLUMNS.index("note") - 2)  # no row, interval or selection
+            writer.writerow([comparison.table, "note", *blank, note, *settings])
+    return buffer.getvalue()
+
+
+def _csv_interval(interval: Interval | None, verdict: str | None) -> list[str]:
+    """estimate, ci_low, ci_high, confidence, verdict."""
+    if interval is None:
+        return [""] * 5
+    return [*map(_csv_number, (interval.estimate, interval.low, interval.high, interval.confidence)), verdict or ""]
+
+
+def _csv_selection(item: Aggregate | Comparison) -> list[str | int]:
+    """tasks, seeds_per_task, seeds, left_out, note."""
+    selection = item.selection
+    seeds = ";".join(f"{task}:{' '.join(map(str, chosen))}"
+                     for task, chosen in zip(selection.tasks, selection.seeds, strict=True))
+    note = "" if selection.k else f"not computed: {selection.too_few}"
+    return [";".join(selection.tasks), selection.k, seeds, selection.left_out_text, note]
 
 
 def _csv_number(value: float | None) -> str:

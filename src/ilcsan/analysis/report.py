@@ -1,12 +1,14 @@
 """The paper's reward tables and learning curves, built from whatever runs exist on disk.
 
 ``ilcsan report DIR`` (and the end of ``ilcsan reproduce``) writes ``report.md``, ``report.tex``,
-``report.csv`` and ``curves.png``. The work is done in four steps, one module each:
+``report.csv``, ``comparison.csv`` and ``curves.png``. The work is done in five steps, one module each:
 
 * :mod:`.collect`: find the runs below a folder and read them (damaged runs and duplicates are listed
   with the reason, never fatal);
 * :mod:`.reward_tables`: group them into a table's cells (mean ± std over seeds of each run's max average
   reward) and rows (APR against DAN), with the paper's numbers beside ours;
+* :mod:`.comparison`: what a stratified bootstrap can tell the rows apart (IQM, P(improvement), APR with
+  intervals; rliable);
 * :mod:`.render`: the tables as Markdown, LaTeX and CSV;
 * :mod:`.curves`: the learning curves as a PNG.
 
@@ -23,8 +25,19 @@ from ..files import atomic_write_text
 from ..paper.layouts import TableSpec
 from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_diagnostics
 from .collect import RunFolders, RunRecord, RunScan, SkippedRun, collect_runs, folders_of, read_run, scan_runs
+from .comparison import DEFAULT_BOOTSTRAP, Bootstrap, TableComparison, compare_table
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
-from .render import REPORT_TITLE, comparison_lines, format_stat, latex_escape, render_csv, render_latex, render_markdown
+from .figures import write_paper_figures
+from .render import (
+    REPORT_TITLE,
+    comparison_lines,
+    format_stat,
+    latex_escape,
+    render_comparison_csv,
+    render_csv,
+    render_latex,
+    render_markdown,
+)
 from .reward_tables import Cell, RowResult, TableResult, build_table, report_tables
 
 DIAGNOSTICS_FIGURE = "diagnostics.png"
@@ -33,6 +46,7 @@ REPORT_FILES: dict[str, str] = {
     "markdown": "report.md",
     "latex": "report.tex",
     "csv": "report.csv",
+    "comparison": "comparison.csv",
     "curves": "curves.png",
 }
 """The files of a report by kind, as :func:`write_report` returns them."""
@@ -40,38 +54,45 @@ REPORT_FILES: dict[str, str] = {
 
 def write_report(directories: RunFolders, out_dir: str | Path | None = None,
                  table: str | TableSpec | None = None, collapse_steps: Sequence[int] = (),
-                 collapse_return: float = COLLAPSE_RETURN, seeds: Collection[int] | None = None) -> dict[str, Path]:
-    """Scan ``directories`` (one folder or several) for runs and write ``report.md``, ``report.tex``, ``report.csv``
-    and ``curves.png`` into ``out_dir`` (default: the folder, when it is one), each atomically. With ``seeds``, only
-    the runs of those seeds count (rows compared on the same seeds), and the title says so. With
+                 collapse_return: float = COLLAPSE_RETURN, seeds: Collection[int] | None = None,
+                 bootstrap: Bootstrap = DEFAULT_BOOTSTRAP) -> dict[str, Path]:
+    """Scan ``directories`` (one folder or several) for runs and write ``report.md``, ``report.tex``, ``report.csv``,
+    ``comparison.csv`` and ``curves.png`` into ``out_dir`` (default: the folder, when it is one), each atomically.
+    With ``seeds``, only the runs of those seeds count (rows compared on the same seeds), and the title says so. With
     ``collapse_steps``, report.md also counts each row's seeds below ``collapse_return`` at those steps
-    (:mod:`.collapse`) and ``diagnostics.png`` draws their actors' diagnostics up to the last of them.
+    (:mod:`.collapse`) and ``diagnostics.png`` draws their actors' diagnostics up to the last of them. ``bootstrap``:
+    the replicates and seed of the intervals that tell rows apart (:mod:`.comparison`; report.md and comparison.csv).
 
-    Returns the paths by kind: ``{"markdown", "latex", "csv", "curves"}`` (and ``"diagnostics"``).
+    Returns the paths by kind: ``{"markdown", "latex", "csv", "comparison", "curves"}`` (and ``"diagnostics"``;
+    ``"fig5"``, ``"fig6"``: the paper's figures, when Table perf has runs of both their rows, :mod:`.figures`).
     """
     roots = folders_of(directories)
     if out_dir is None and len(roots) != 1:
         raise ValueError("a report of several folders needs out_dir")
     out = Path(out_dir) if out_dir is not None else roots[0]
-    return write_scanned_report(scan_runs(roots), out, table, collapse_steps, collapse_return, seeds).paths
+    return write_scanned_report(scan_runs(roots), out, table, collapse_steps, collapse_return, seeds, bootstrap).paths
 
 
 @dataclass(frozen=True)
 class WrittenReport:
-    """What :func:`write_scanned_report` wrote (``paths`` by kind) and the tables it wrote them from."""
+    """What :func:`write_scanned_report` wrote (``paths`` by kind), the tables it wrote them from and what tells their
+    rows apart (one per table)."""
 
     paths: dict[str, Path]
     results: list[TableResult]
+    comparisons: list[TableComparison]
 
 
 def write_scanned_report(scan: RunScan, out: Path, table: str | TableSpec | None = None,
                          collapse_steps: Sequence[int] = (), collapse_return: float = COLLAPSE_RETURN,
-                         seeds: Collection[int] | None = None) -> WrittenReport:
+                         seeds: Collection[int] | None = None,
+                         bootstrap: Bootstrap = DEFAULT_BOOTSTRAP) -> WrittenReport:
     """:func:`write_report` of runs already scanned, into the folder ``out``."""
     results = report_tables(runs_of_seeds(scan.runs, seeds), table)
     paths = {kind: out / name for kind, name in REPORT_FILES.items()}
     title = REPORT_TITLE + ("" if seeds is None else f": seeds {seed_text(seeds)} only")
-    markdown = render_markdown(results, scan.skipped, title)
+    comparisons = [compare_table(result, bootstrap) for result in results]
+    markdown = render_markdown(results, scan.skipped, title, comparisons)
     if collapse_steps:
         groups = collapse_groups(results)
         steps = sorted(collapse_steps)
@@ -84,8 +105,10 @@ def write_scanned_report(scan: RunScan, out: Path, table: str | TableSpec | None
     atomic_write_text(paths["markdown"], markdown)
     atomic_write_text(paths["latex"], render_latex(results, scan.skipped, title))
     atomic_write_text(paths["csv"], render_csv(results))
+    atomic_write_text(paths["comparison"], render_comparison_csv(comparisons))
     draw_curves(results, paths["curves"])
-    return WrittenReport(paths, results)
+    paths.update(write_paper_figures(results, out))
+    return WrittenReport(paths, results, comparisons)
 
 
 def runs_of_seeds(runs: Sequence[RunRecord], seeds: Collection[int] | None) -> list[RunRecord]:
@@ -120,6 +143,7 @@ __all__ = [
     "write_report", "write_scanned_report", "WrittenReport", "REPORT_FILES", "runs_of_seeds",
     "RunRecord", "RunScan", "SkippedRun", "scan_runs", "collect_runs", "read_run",
     "Cell", "RowResult", "TableResult", "build_table", "report_tables",
+    "Bootstrap", "TableComparison", "compare_table", "render_comparison_csv",
     "format_stat", "latex_escape", "render_markdown", "render_latex", "render_csv", "comparison_lines",
     "smooth", "smoothing_window", "curve", "plot_curves", "draw_curves",
 ]

@@ -107,6 +107,8 @@ class TableResult:
     rows: tuple[RowResult, ...]
     reference: str
     """Where the DAN reference of the APR came from, in words."""
+    dan: Mapping[str, tuple[RunRecord, ...]] = field(default_factory=dict, compare=False)
+    """The DAN reference's seed runs per task (by seed), the runs whose mean is each task's APR denominator."""
 
     def row(self, key: str) -> RowResult:
         """The row with this key (row slug for a grid table, else the label)."""
@@ -267,25 +269,25 @@ def _tasks_in(runs: Iterable[RunRecord]) -> tuple[str, ...]:
 
 
 def _dan_reference(groups: Sequence[_RowDraft], reference: Sequence[RunRecord],
-                   tasks: Sequence[str]) -> tuple[dict[str, float], str]:
-    """Mean DAN score per task: the table's DAN row, else Table perf's DAN row, else any DAN run."""
+                   tasks: Sequence[str]) -> tuple[dict[str, tuple[RunRecord, ...]], str]:
+    """DAN runs per task (by seed): the table's DAN row, else Table perf's DAN row, else any DAN run."""
     own = [run for group in groups if group.runs and all(run.is_dan for run in group.runs)
            for run in group.runs]
     perf = [run for run in reference if run.table == "perf" and run.row == "dan"]
     other = [run for run in reference if run.is_dan]
     sources = (("this table's DAN row", own), ("Table perf's DAN row", perf), ("other DAN runs", other))
-    means: dict[str, float] = {}
+    runs: dict[str, tuple[RunRecord, ...]] = {}
     used: list[str] = []
     for task in tasks:
         for name, pool in sources:
-            scores = [run.best_return for run in pool if run.task == task]
-            if scores:
-                means[task] = float(np.mean(scores))
+            found = sorted((run for run in pool if run.task == task), key=lambda run: run.seed)
+            if found:
+                runs[task] = tuple(found)
                 if name not in used:
                     used.append(name)
                 break
     description = " and ".join(used) if used else "no DAN runs found (APR not computed)"
-    return means, description
+    return runs, description
 
 
 def _apr(cells: Sequence[Cell], dan: Mapping[str, float]) -> tuple[float | None, int]:
@@ -297,6 +299,7 @@ def _apr(cells: Sequence[Cell], dan: Mapping[str, float]) -> tuple[float | None,
 def _table_result(name: str | None, caption: str, tasks: tuple[str, ...], groups: Sequence[_RowDraft],
             reference: Sequence[RunRecord]) -> TableResult:
     dan, described = _dan_reference(groups, reference, tasks)
+    dan_means = {task: float(np.mean([run.best_return for run in runs])) for task, runs in dan.items()}
     rows = []
     for group in groups:
         cells = tuple(
@@ -304,11 +307,11 @@ def _table_result(name: str | None, caption: str, tasks: tuple[str, ...], groups
                  published_cell(*group.paper, task) if group.paper else None)
             for task in tasks
         )
-        apr, count = _apr(cells, dan)
+        apr, count = _apr(cells, dan_means)
         rows.append(RowResult(group.key, group.label, cells, apr, count,
                               published_apr(*group.paper) if group.paper and group.paper_apr else None,
                               group.runnable))
-    return TableResult(name, caption, tasks, _mark_best(rows, tasks), described)
+    return TableResult(name, caption, tasks, _mark_best(rows, tasks), described, dan)
 
 
 def _mark_best(rows: list[RowResult], tasks: Sequence[str]) -> tuple[RowResult, ...]:

@@ -11,6 +11,7 @@ import os
 import sys
 
 from .. import __version__
+from ..analysis.comparison import BOOTSTRAP_REPS, BOOTSTRAP_SEED
 from ..arguments import non_negative_int, positive_int
 from ..config import BACKENDS, COLLAPSE_RETURN, EXPORT_FORMATS, NIR_TARGETS, WEIGHT_FORMATS, RunConfig, TrainingProtocol
 from ..deploy.lava import run_options
@@ -130,6 +131,11 @@ def _add_report_command(subparsers) -> None:
     report.add_argument("--collapse-return", type=float, default=COLLAPSE_RETURN,
                         help=f"the return below which a seed counts as collapsed (default {COLLAPSE_RETURN:g}, "
                              "Hopper's falls)")
+    report.add_argument("--bootstrap-reps", type=positive_int, default=BOOTSTRAP_REPS,
+                        help="replicates of the stratified bootstrap whose 95 %% intervals tell rows apart (IQM, "
+                             f"P(improvement), APR; default {BOOTSTRAP_REPS})")
+    report.add_argument("--bootstrap-seed", type=non_negative_int, default=BOOTSTRAP_SEED,
+                        help=f"seed of the bootstrap's draws (default {BOOTSTRAP_SEED}): the same report each time")
     report.set_defaults(handler=grid_commands.cmd_report)
 
 

@@ -78,8 +78,10 @@ def parse_steps(text: str) -> tuple[int, ...]:
 
 
 def cmd_report(args) -> int:
-    """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is."""
+    """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is, how
+    its cells stand beside the paper's and what tells its rows apart."""
     from ..analysis.collect import folders_of, scan_runs
+    from ..analysis.comparison import BOOTSTRAP_REPS, BOOTSTRAP_SEED, Bootstrap
     from ..analysis.report import comparison_lines, runs_of_seeds, write_scanned_report
     from ..experiments.grid import report_layout
 
@@ -98,9 +100,11 @@ def cmd_report(args) -> int:
                         f"{', '.join(map(str, found))}")
     table = report_layout(args.table, runs)
     collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
+    bootstrap = Bootstrap(getattr(args, "bootstrap_reps", BOOTSTRAP_REPS),
+                          getattr(args, "bootstrap_seed", BOOTSTRAP_SEED))
     try:
         written = write_scanned_report(scan, Path(args.out) if args.out else folders[0], table, collapse_steps,
-                                       args.collapse_return, seeds)
+                                       args.collapse_return, seeds, bootstrap)
     except OSError as error:  # --out is a file, read-only, full, ...
         raise UserError(f"cannot write the report to {args.out or where}: {error.strerror or error}; "
                         "choose another --out") from None
@@ -108,11 +112,16 @@ def cmd_report(args) -> int:
           + (f", {len(runs)} of seeds {args.seeds} reported" if seeds is not None else "")
           + (f", {len(scan.skipped)} skipped (listed in report.md)" if scan.skipped else ""))
     for kind, path in written.paths.items():
-        print(f"  {kind:<8} {path}")
+        print(f"  {kind:<10} {path}")
     comparisons = [line for result in written.results for line in comparison_lines(result)]
     if comparisons:
         print("beside the paper (our mean against the published mean ± std):")
         print("\n".join(f"  {line}" for line in comparisons))
+    for comparison in written.comparisons:
+        sentences = comparison.sentences()
+        if sentences:
+            print(f"telling the rows of {comparison.table} apart ({comparison.bootstrap.text}):")
+            print("\n".join(f"  {sentence}" for sentence in sentences))
     return 0
 
 
