@@ -15,8 +15,14 @@ from ilcsan.analysis.collect import collect_runs
 from ilcsan.analysis.comparison import (
     APR,
     IMPROVEMENT,
+    OUR_DAN,
     PAPER_DAN,
+    Aggregate,
     Bootstrap,
+    Comparison,
+    Interval,
+    Selection,
+    TableComparison,
     common_selection,
     compare,
     compare_table,
@@ -24,6 +30,7 @@ from ilcsan.analysis.comparison import (
     probability_of_improvement,
     select_seeds,
 )
+from ilcsan.analysis.figures import draw_intervals
 from ilcsan.analysis.report import write_report
 from ilcsan.analysis.reward_tables import build_table
 from ilcsan.paper.published import published_cell
@@ -156,6 +163,7 @@ def test_the_report_says_in_words_whether_ilc_san_beats_dan(tmp_path: Path) -> N
                      row="ilc-san-pop-det")
     make_run(tmp_path, "Hopper", 0, "PopSAN", [3100.0], table="perf", row="popsan", preset="popsan")
     paths = write_report(tmp_path, table="perf", bootstrap=QUICK)
+    assert paths["intervals"] == tmp_path / "intervals.png" and paths["intervals"].exists()
     markdown = paths["markdown"].read_text()
     assert "### Telling the rows apart" in markdown
     assert ("- ILC-SAN (E\\_pop\\_det) over DAN: P(improvement) = 1.00, 95 % CI 1.00–1.00 on 2 tasks × 3 seeds "
@@ -168,3 +176,40 @@ def test_the_report_says_in_words_whether_ilc_san_beats_dan(tmp_path: Path) -> N
     expected = 100 * np.mean([3510 / 3010, 5610 / 5010])
     assert float(apr["estimate"]) == pytest.approx(expected)
     assert (apr["verdict"], apr["tasks"], apr["seeds_per_task"], apr["reps"]) == ("better", "Ant;Hopper", "3", "400")
+
+
+# ------------------------------------------------------------------------------------------------
+# intervals.png
+
+
+def test_the_interval_figure_draws_each_computed_interval_as_a_bar_and_skips_rows_without_numbers(
+        tmp_path: Path) -> None:
+    selection = Selection(("Ant", "Hopper"), ((0, 1, 2), (0, 1, 2)))
+    aggregates = (Aggregate("ILC-SAN", OUR_DAN, selection, Interval(1.1, 0.9, 1.3), Interval(1.2, 1.0, 1.4)),
+                  Aggregate("PopSAN", OUR_DAN, Selection((), ())))
+    comparisons = (Comparison(IMPROVEMENT, "ILC-SAN", "DAN", selection, Interval(0.7, 0.55, 0.85)),
+                   Comparison(IMPROVEMENT, "PopSAN", "DAN", Selection((), ())))
+    path = tmp_path / "intervals.png"
+    figure = draw_intervals([TableComparison("perf", aggregates, comparisons, (), QUICK)], path)
+    assert path.read_bytes().startswith(b"\x89PNG")
+    iqm, mean, improvement = figure.axes
+    assert iqm.get_title() == f"IQM of score / {OUR_DAN}"
+    (bar,) = iqm.patches
+    assert (bar.get_x(), bar.get_x() + bar.get_width()) == pytest.approx((0.9, 1.3))
+    assert [tick.get_text() for tick in iqm.get_yticklabels()] == ["ILC-SAN\n2 tasks × 3 seeds"]
+    (tick,) = [line for line in iqm.lines if line.get_color() == "black"]
+    assert list(tick.get_xdata()) == pytest.approx([1.1, 1.1])
+    (bar,) = improvement.patches
+    assert (bar.get_x(), bar.get_x() + bar.get_width()) == pytest.approx((0.55, 0.85))
+    assert any(list(line.get_xdata()) == [0.5, 0.5] and line.get_linestyle() == "--" for line in improvement.lines)
+    assert not any(line.get_linestyle() == "--" for line in iqm.lines)
+
+
+def test_the_interval_figure_is_not_written_when_nothing_was_computed(tmp_path: Path) -> None:
+    empty = TableComparison("perf", (Aggregate("PopSAN", OUR_DAN, Selection((), ())),),
+                            (Comparison(IMPROVEMENT, "PopSAN", "DAN", Selection((), ())),), (), QUICK)
+    assert draw_intervals([empty], tmp_path / "intervals.png") is None
+    assert not (tmp_path / "intervals.png").exists()
+    make_run(tmp_path, "Hopper", 0, "PopSAN", [3100.0], table="perf", row="popsan", preset="popsan")
+    paths = write_report(tmp_path, table="perf", bootstrap=QUICK)
+    assert "intervals" not in paths and not (tmp_path / "intervals.png").exists()

@@ -27,7 +27,7 @@ from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_di
 from .collect import RunFolders, RunRecord, RunScan, SkippedRun, collect_runs, folders_of, read_run, scan_runs
 from .comparison import DEFAULT_BOOTSTRAP, Bootstrap, TableComparison, compare_table
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
-from .figures import write_paper_figures
+from .figures import write_interval_figure, write_paper_figures
 from .render import (
     REPORT_TITLE,
     comparison_lines,
@@ -64,7 +64,8 @@ def write_report(directories: RunFolders, out_dir: str | Path | None = None,
     the replicates and seed of the intervals that tell rows apart (:mod:`.comparison`; report.md and comparison.csv).
 
     Returns the paths by kind: ``{"markdown", "latex", "csv", "comparison", "curves"}`` (and ``"diagnostics"``;
-    ``"fig5"``, ``"fig6"``: the paper's figures, when Table perf has runs of both their rows, :mod:`.figures`).
+    ``"fig5"``, ``"fig6"``: the paper's figures, when Table perf has runs of both their rows, :mod:`.figures`;
+    ``"intervals"``: ``intervals.png``, when an interval was computed).
     """
     roots = folders_of(directories)
     if out_dir is None and len(roots) != 1:
@@ -108,6 +109,7 @@ def write_scanned_report(scan: RunScan, out: Path, table: str | TableSpec | None
     atomic_write_text(paths["comparison"], render_comparison_csv(comparisons))
     draw_curves(results, paths["curves"])
     paths.update(write_paper_figures(results, out))
+    paths.update(write_interval_figure(comparisons, out))
     return WrittenReport(paths, results, comparisons)
 
 
