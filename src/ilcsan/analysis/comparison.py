@@ -37,9 +37,8 @@ its IQM and mean, two for a comparison), each task offers the seeds all of them 
 pair across rows; tasks without a normaliser, or without runs of one of the rows, are left out. Every task with at
 least 2 such seeds is kept (one run per task has no spread to resample; a statistic over tasks, as the paper's APR,
 should see as many tasks as it can), and k is the fewest common seeds among them: each kept task contributes its
-first k common seeds. The tasks, k, the seeds and
-the tasks left out (and why) are part of every sentence; with fewer than 2 common seeds on every task, the sentence
-says so instead of a number.
+first k common seeds. The tasks, k, the seeds and the tasks left out (and why) are part of every sentence; with
+fewer than 2 common seeds on every task, the sentence says so instead of a number.
 """
 
 from __future__ import annotations
@@ -343,7 +342,9 @@ class Normaliser:
 
 def normalisers(result: TableResult) -> tuple[Normaliser, Normaliser]:
     """Our DAN's mean per task (the table's APR reference, every seed) and the paper's published DAN mean."""
-    ours = {task: float(np.mean([run.best_return for run in runs])) for task, runs in result.dan.items()}
+    from .reward_tables import dan_means
+
+    ours = dan_means(result.dan)
     paper = {task: stat.mean for task in result.tasks if (stat := published_cell(*APR_REFERENCE, task))}
     return (Normaliser.of(OUR_DAN, ours, result.tasks, f"no runs of {DAN}"),
             Normaliser.of(PAPER_DAN, paper, result.tasks, "no published DAN value"))

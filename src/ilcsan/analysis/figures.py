@@ -32,10 +32,9 @@ INTERVALS_FIGURE = "intervals.png"
 @dataclass(frozen=True)
 class ComparisonFigure:
     """A figure of the paper that compares rows of one table on some tasks: its file stem (``fig5`` →
-    ``fig5.png``), the paper's LaTeX label, the table, the rows by slug (drawn in this order) and the tasks."""
+    ``fig5.png``), the table, the rows by slug (drawn in this order), the tasks and its title."""
 
     name: str
-    label: str
     table: str
     rows: tuple[str, ...]
     tasks: tuple[str, ...]
@@ -43,12 +42,12 @@ class ComparisonFigure:
 
 
 PAPER_FIGURES: tuple[ComparisonFigure, ...] = (
-    ComparisonFigure("fig5", "fig:pop-det", "perf", ("popsan", "ilc-san-pop-det"), FIRST_FOUR,
+    ComparisonFigure("fig5", "perf", ("popsan", "ilc-san-pop-det"), FIRST_FOUR,
                      "PopSAN and ILC-SAN using E_pop_det (the paper's Fig. 5)"),
-    ComparisonFigure("fig6", "fig:pop", "perf", ("mdc-san", "ilc-san-pop"), FIRST_FOUR,
+    ComparisonFigure("fig6", "perf", ("mdc-san", "ilc-san-pop"), FIRST_FOUR,
                      "MDC-SAN and ILC-SAN using E_pop (the paper's Fig. 6)"),
 )
-"""The paper's learning-curve figures: Fig. 5 (``fig:pop-det``) and Fig. 6 (``fig:pop``)."""
+"""The paper's learning-curve figures: Fig. 5 (LaTeX label ``fig:pop-det``) and Fig. 6 (``fig:pop``)."""
 
 
 def figure_rows(result: TableResult, figure: ComparisonFigure) -> list[RowResult] | None:

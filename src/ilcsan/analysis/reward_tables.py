@@ -290,6 +290,11 @@ def _dan_reference(groups: Sequence[_RowDraft], reference: Sequence[RunRecord],
     return runs, description
 
 
+def dan_means(dan: Mapping[str, Sequence[RunRecord]]) -> dict[str, float]:
+    """The APR's denominator per task: the mean max average reward of the DAN reference's runs on it."""
+    return {task: float(np.mean([run.best_return for run in runs])) for task, runs in dan.items()}
+
+
 def _apr(cells: Sequence[Cell], dan: Mapping[str, float]) -> tuple[float | None, int]:
     ratios = [cell.mean / dan[cell.task] for cell in cells
               if cell.mean is not None and dan.get(cell.task) not in (None, 0.0)]
@@ -299,7 +304,6 @@ def _apr(cells: Sequence[Cell], dan: Mapping[str, float]) -> tuple[float | None,
 def _table_result(name: str | None, caption: str, tasks: tuple[str, ...], groups: Sequence[_RowDraft],
             reference: Sequence[RunRecord]) -> TableResult:
     dan, described = _dan_reference(groups, reference, tasks)
-    dan_means = {task: float(np.mean([run.best_return for run in runs])) for task, runs in dan.items()}
     rows = []
     for group in groups:
         cells = tuple(
@@ -307,7 +311,7 @@ def _table_result(name: str | None, caption: str, tasks: tuple[str, ...], groups
                  published_cell(*group.paper, task) if group.paper else None)
             for task in tasks
         )
-        apr, count = _apr(cells, dan_means)
+        apr, count = _apr(cells, dan_means(dan))
         rows.append(RowResult(group.key, group.label, cells, apr, count,
                               published_apr(*group.paper) if group.paper and group.paper_apr else None,
                               group.runnable))
