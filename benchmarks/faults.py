@@ -217,7 +217,7 @@ def bad_inputs(base: Path, scale: int) -> dict:
 RAY_PROBE = r"""
 import json, os, socket, struct
 from pathlib import Path
-from ilcsan.experiments.backends import start_local_ray, ray_node_address
+from ilcsan.experiments.ray_cluster import ray_node_address, start_local_ray
 import ray
 
 def tree(root):

@@ -17,7 +17,7 @@ import pytest
 
 from ilcsan.cli import main
 from ilcsan.errors import UserError
-from ilcsan.experiments.backends import LocalBackend, RayBackend, ray_node_address, termination_as_ctrl_c
+from ilcsan.experiments.backends import LocalBackend, RayBackend, termination_as_ctrl_c
 from ilcsan.experiments.coordinator import run_grid
 from ilcsan.experiments.estimate import estimate_hours, list_tables, method_step_cost, run_step_cost
 from ilcsan.experiments.grid import GridOptions, expand_grid
@@ -33,6 +33,7 @@ from ilcsan.experiments.jobs import (
     run_state,
 )
 from ilcsan.experiments.progress import format_duration
+from ilcsan.experiments.ray_cluster import ray_node_address
 from ilcsan.paper.layouts import TABLES
 from ilcsan.rl.matmul_choice import recorded_matmul_path
 from ilcsan.rl.training import Trainer, train

@@ -524,7 +524,7 @@ def test_stale_temporary_files_are_removed_on_resume(run_copy, capsys):
 
 def test_a_local_ray_binds_to_loopback_with_its_dashboard_off(monkeypatch):
     ray = pytest.importorskip("ray")
-    from ilcsan.experiments import backends as experiments
+    from ilcsan.experiments import ray_cluster as experiments
 
     calls: list[dict] = []
     monkeypatch.setattr(ray, "init", lambda *args, **kwargs: calls.append(dict(kwargs, args=args)))

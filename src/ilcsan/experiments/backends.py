@@ -13,9 +13,10 @@
                      dies (``max_retries``), and the retry resumes from the checkpoint. Without
                      ``--address`` a private single-machine Ray is started, listening on the loopback
                      interface only, dashboard off; ``--address HOST:PORT`` (or ``auto``) joins an
-                     existing cluster. On a cluster of several machines, ``OUT`` must be on storage
-                     shared by every node under the same path (NFS, a cluster file system) and
-                     ``ilcsan`` installed on every node. Install Ray with ``pip install "ilcsan[ray]"``.
+                     existing cluster, with Ray's token when this machine has one (:mod:`.ray_cluster`).
+                     On a cluster of several machines, ``OUT`` must be on storage shared by every node
+                     under the same path (NFS, a cluster file system) and ``ilcsan`` installed on every
+                     node. Install Ray with ``pip install "ilcsan[ray]"``.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from __future__ import annotations
 import concurrent.futures
 import contextlib
 import ctypes
-import logging
 import multiprocessing
 import os
 import signal
@@ -37,13 +37,13 @@ from typing import Any, Protocol
 from ..config import BACKENDS as BACKEND_CHOICES
 from ..errors import UserError
 from .jobs import Job, JobOutcome, run_job
+from .ray_cluster import import_ray, join_ray_cluster, start_local_ray
 
 RAY_MAX_RETRIES = 3
 INTERRUPT_GRACE_SECONDS = 30.0
 """How long a local job has, after Ctrl-C, to stop at its last checkpoint before its worker process is killed."""
 INTERRUPT_REPEAT_SECONDS = 10.0
 """How often Ctrl-C is sent again, within the grace, to a worker whose job still runs."""
-RAY_INSTALL_HINT = 'pip install "ilcsan[ray]"'
 
 
 PR_SET_PDEATHSIG = 1
@@ -190,16 +190,6 @@ class LocalBackend:
             self.executor = None
 
 
-def import_ray():
-    """Ray, or a UserError saying how to install it."""
-    try:
-        import ray
-    except ImportError:
-        raise UserError(f"--backend ray needs Ray, which is not installed; install it with {RAY_INSTALL_HINT}") \
-            from None
-    return ray
-
-
 class RayBackend:
     """One Ray task per job (``num_cpus=1``), retried by Ray when its worker or node dies."""
 
@@ -208,14 +198,13 @@ class RayBackend:
         self.started_here = address is None
         if self.started_here:
             start_local_ray(workers or os.cpu_count() or 1, dashboard)
+            self.where = "a local Ray (loopback only)"
         else:
-            try:
-                ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
-            except (ConnectionError, ValueError, RuntimeError) as error:
-                raise UserError(f"cannot join the Ray cluster at {address!r}: {error}") from None
+            authentication = join_ray_cluster(address)
+            self.where = f"the Ray cluster at {address} ({'token' if authentication == 'token' else 'no'} " \
+                         "authentication)"
         cpus = int(ray.cluster_resources().get("CPU", 0))
         self.slots = workers or max(1, cpus)
-        self.where = "a local Ray (loopback only)" if self.started_here else f"the Ray cluster at {address}"
         self.cpus = cpus
         self.task = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(run_job)
 
@@ -253,50 +242,6 @@ class RayBackend:
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self.ray.shutdown()
-
-
-def start_local_ray(num_cpus: int, dashboard: bool = False) -> None:
-    """Start a private single-machine Ray that listens on 127.0.0.1 only (never joins another cluster).
-
-    In Ray 2.60 on Linux ``_node_ip_address="127.0.0.1"`` alone is turned into the machine's outward
-    address and the servers listen there; Ray keeps a node on the loopback address only when its cluster
-    mode is off (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, the default on macOS and Windows), which is
-    set here for the processes Ray starts and restored afterwards. ``address="local"`` makes sure a new
-    instance is started, whatever ``RAY_ADDRESS`` says.
-    """
-    ray = import_ray()
-    variable = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
-    saved_env = os.environ.get(variable)
-    constants = _ray_constants()
-    saved_flag = getattr(constants, "ENABLE_RAY_CLUSTER", None)
-    os.environ[variable] = "0"
-    if saved_flag is not None:
-        constants.ENABLE_RAY_CLUSTER = False  # read at import time; Ray may already be imported
-    try:
-        ray.init(address="local", num_cpus=num_cpus, include_dashboard=dashboard, dashboard_host="127.0.0.1",
-                 _node_ip_address="127.0.0.1", log_to_driver=False, logging_level=logging.WARNING)
-    finally:
-        if saved_env is None:
-            os.environ.pop(variable, None)
-        else:
-            os.environ[variable] = saved_env
-        if saved_flag is not None:
-            constants.ENABLE_RAY_CLUSTER = saved_flag
-
-
-def _ray_constants():
-    try:
-        from ray._private import ray_constants
-    except ImportError:  # a future Ray without this module: the node address is checked by the caller
-        return None
-    return ray_constants
-
-
-def ray_node_address() -> str:
-    """The address the connected Ray node listens on (127.0.0.1 for :func:`start_local_ray`)."""
-    import ray
-
-    return str(ray.util.get_node_ip_address())
 
 
 BACKENDS: tuple[str, ...] = tuple(BACKEND_CHOICES)

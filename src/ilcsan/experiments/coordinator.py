@@ -80,6 +80,8 @@ def run_grid(grid: Grid, backend: str | Backend = "local", workers: int | None =
     if not jobs:
         log("every run is finished; nothing to train")
         return _summarise(grid, summary, 0, started, write_report, log)
+    if isinstance(backend, str) and address:
+        log(f"joining the Ray cluster at {address} …")
     executor = make_backend(backend, workers, address, dashboard) if isinstance(backend, str) else backend
     progress = Progress.start(grid, states)
     try:
