@@ -7,7 +7,9 @@ import csv
 import dataclasses
 import json
 import os
+import platform
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -33,7 +35,7 @@ from ilcsan.experiments.jobs import (
     run_state,
 )
 from ilcsan.experiments.progress import format_duration
-from ilcsan.experiments.ray_cluster import ray_node_address
+from ilcsan.experiments.ray_cluster import captured_stderr, check_listening, join_failure, ray_node_address
 from ilcsan.paper.layouts import TABLES
 from ilcsan.rl.matmul_choice import recorded_matmul_path
 from ilcsan.rl.training import Trainer, train
@@ -392,6 +394,47 @@ def test_grid_runs_on_a_local_ray_bound_to_loopback(tmp_path):
     for run in grid.runs:
         assert json.loads((run.directory / "result.json").read_text())["finished"]
     assert summary.report is not None and summary.report["curves"].is_file()
+
+
+def test_a_join_that_fails_is_told_by_its_cause():
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'ilcsan[ray]'); CI installs it")
+    from ray._private.utils import check_version_info
+
+    with pytest.raises(RuntimeError) as mismatch:  # Ray's own check, with a cluster of another Python
+        check_version_info({"ray_version": ray.__version__, "python_version": "3.10.13"}, "127.0.0.1:6379")
+    line = join_failure("10.0.0.5:6379", mismatch.value, "", token_sent=False)
+    assert f"runs Ray {ray.__version__} on Python 3.10.13, this machine Ray {ray.__version__} on Python " \
+           f"{platform.python_version()}" in line and "10.0.0.5:6379" in line
+
+    refused = "gcs_client.cc:210: Failed to get cluster ID from GCS server: Unauthenticated: RPC error: " \
+              "InvalidAuthToken: Authentication token is missing or incorrect\n" * 3
+    lost = ConnectionError("Failed to connect to Ray cluster at 10.0.0.5:6379")
+    assert "refused this machine's Ray token" in join_failure("10.0.0.5:6379", lost, refused, token_sent=True)
+    assert "this machine has none" in join_failure("10.0.0.5:6379", lost, refused, token_sent=False)
+    assert join_failure("10.0.0.5:6379", lost, "", token_sent=True) == \
+        "cannot join the Ray cluster at 10.0.0.5:6379: Failed to connect to Ray cluster at 10.0.0.5:6379"
+    for line in (join_failure("x:1", lost, refused, token_sent=True), join_failure("x:1", mismatch.value, "", False)):
+        assert "\n" not in line
+
+
+def test_what_c_libraries_write_to_stderr_is_captured_and_the_terminal_restored(capfd):
+    with captured_stderr() as ray_log:
+        os.write(2, b"gcs_client.cc: retry 1\n")  # as Ray's C++ client writes, below Python's sys.stderr
+        os.write(2, b"gcs_client.cc: retry 2\n")
+    os.write(2, b"after\n")
+    assert ray_log.text == "gcs_client.cc: retry 1\ngcs_client.cc: retry 2\n"
+    assert capfd.readouterr().err == "after\n"
+
+
+def test_an_address_that_is_not_host_port_or_has_nothing_listening_is_one_sentence():
+    with pytest.raises(UserError, match="is not HOST:PORT"):
+        check_listening("6379")
+    with socket.socket() as unused:  # a port nothing listens on: bound, never listening
+        unused.bind(("127.0.0.1", 0))
+        port = unused.getsockname()[1]
+        with pytest.raises(UserError, match=rf"no Ray cluster answers at 127.0.0.1:{port} .*ray start --head "
+                                            rf"--port={port}"):
+            check_listening(f"127.0.0.1:{port}")
 
 
 # ------------------------------------------------------------------------------------------------

@@ -98,7 +98,10 @@ def _add_reproduce_command(subparsers) -> None:
     add_setting(reproduce, TrainingProtocol, "start_steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--out", default="runs/reproduce", help="grid directory (default runs/reproduce)")
     reproduce.add_argument("--backend", default="local", help=choices_help(BACKENDS, "local"))
-    reproduce.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray)")
+    reproduce.add_argument("--address", default=None,
+                           help="join the Ray cluster at HOST:PORT, or auto (this machine's, or RAY_ADDRESS's), "
+                           "sending this machine's Ray token if it has one (docs/cluster.md); default: start a "
+                           "private local Ray")
     reproduce.add_argument("--workers", type=positive_int, default=None, help="parallel runs (default: cores)")
     add_setting(reproduce, RunConfig, "contact_forces")
     add_setting(reproduce, RunConfig, "device")

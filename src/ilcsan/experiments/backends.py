@@ -200,9 +200,7 @@ class RayBackend:
             start_local_ray(workers or os.cpu_count() or 1, dashboard)
             self.where = "a local Ray (loopback only)"
         else:
-            authentication = join_ray_cluster(address)
-            self.where = f"the Ray cluster at {address} ({'token' if authentication == 'token' else 'no'} " \
-                         "authentication)"
+            self.where = join_ray_cluster(address)
         cpus = int(ray.cluster_resources().get("CPU", 0))
         self.slots = workers or max(1, cpus)
         self.cpus = cpus

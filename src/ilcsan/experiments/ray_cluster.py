@@ -90,8 +90,9 @@ def ray_node_address() -> str:
 
 # ------------------------------------------------------------------------------- a user's cluster
 def join_ray_cluster(address: str) -> str:
-    """Connect this process to the Ray cluster at ``address`` (``HOST:PORT`` or ``auto``); returns how it
-    authenticated (``"token"`` or ``"none"``), or raises a UserError of one line (:func:`join_failure`)."""
+    """Connect this process to the Ray cluster at ``address`` (``HOST:PORT`` or ``auto``); returns what joined it
+    ("the Ray cluster at HOST:PORT (token authentication)"), or raises a UserError of one line
+    (:func:`join_failure`)."""
     ray = import_ray()
     if address != "auto":
         check_listening(address)
@@ -105,7 +106,8 @@ def join_ray_cluster(address: str) -> str:
             failure = None
     if failure is not None:
         raise UserError(join_failure(address, failure, ray_log.text, token)) from None
-    return "token" if token else "none"
+    joined = ray.get_runtime_context().gcs_address
+    return f"the Ray cluster at {joined} ({'token' if token else 'no'} authentication)"
 
 
 def check_listening(address: str) -> None:
