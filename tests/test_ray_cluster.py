@@ -48,8 +48,8 @@ overrides = {{ hidden_width = 16 }}
 """
 WORKERS_AT_OUR_PRIORITY = {"RAY_worker_niceness": "0"}
 """Ray lowers its workers' priority by 15 by default: on 2 cores beside another busy test worker they would starve."""
-SHORT_CONNECT = {"RAY_gcs_rpc_server_connect_timeout_s": "3"}
-"""For the drivers that must fail: Ray gives up on a refused connection after 3 s instead of ≈ 20 s."""
+SHORT_CONNECT = {"RAY_NUM_REDIS_GET_RETRIES": "3"}
+"""For the drivers that must fail: Ray gives up on a refused connection after 3 tries (≈ 3 s) instead of 20."""
 
 
 @pytest.fixture
