@@ -304,6 +304,8 @@ class TableComparison:
     comparisons: tuple[Comparison, ...]
     notes: tuple[str, ...]
     bootstrap: Bootstrap
+    rows: tuple[str, ...] = ()
+    """The table's row labels in its order (which gives each row its colour in every figure)."""
 
     def sentences(self, escape: Callable[[str], str] = str) -> list[str]:
         """Every statistic and note as a plain sentence, aggregates first; ``escape`` for the output's format."""
@@ -399,7 +401,8 @@ def compare_table(result: TableResult, bootstrap: Bootstrap = DEFAULT_BOOTSTRAP)
     if ilc_san_scores is not None:
         comparisons += [compare(IMPROVEMENT, ilc_san_scores, other, result.tasks, bootstrap) for other in others]
     notes = _notes(bool(dan[1]), bool(paper.means), ilc_san, ilc_san_scores is not None, bool(others))
-    return TableComparison(name, aggregates, tuple(comparisons), notes, bootstrap)
+    return TableComparison(name, aggregates, tuple(comparisons), notes, bootstrap,
+                           tuple(row.label for row in result.rows))
 
 
 def _notes(dan: bool, published: bool, ilc_san: str | None, ilc_san_ran: bool, others: bool) -> tuple[str, ...]:

@@ -111,9 +111,14 @@ def _plotted_tasks(result: TableResult) -> tuple[str, ...]:
     return with_runs or result.tasks
 
 
+def row_colour(position: int) -> str:
+    """The colour of the table's row at ``position``: a row has the same colour in every figure of its table."""
+    return f"C{position % 10}"
+
+
 def row_colors(result: TableResult) -> dict[str, str]:
-    """Each row's colour by its key: its position in the table, so a row has the same colour in every figure."""
-    return {row.key: f"C{index % 10}" for index, row in enumerate(result.rows)}
+    """Each row's colour (:func:`row_colour`) by its key."""
+    return {row.key: row_colour(index) for index, row in enumerate(result.rows)}
 
 
 PAPER_LABEL = "paper (max avg. reward ± std)"

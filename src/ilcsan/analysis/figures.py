@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..paper.published import FIRST_FOUR
 from .comparison import EVEN, IMPROVEMENT, Interval, Selection, TableComparison
-from .curves import draw_rows, mark_no_runs, save_figure, style_panel
+from .curves import draw_rows, mark_no_runs, row_colour, save_figure, style_panel
 from .reward_tables import RowResult, TableResult
 
 INTERVALS_FIGURE = "intervals.png"
@@ -138,7 +138,7 @@ PANEL_COLUMNS = 3
 def draw_intervals(comparisons: Sequence[TableComparison], path: str | Path):
     """Draw the interval estimates of ``comparisons`` into ``path`` (a PNG, written atomically), each table's panels
     in lines of :data:`PANEL_COLUMNS`; returns the Figure, or None (nothing written) when no interval was computed.
-    A row has one colour in every panel of its table."""
+    A row has the colour it has in the table's curves (:func:`~.curves.row_colour`)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -156,8 +156,9 @@ def draw_intervals(comparisons: Sequence[TableComparison], path: str | Path):
                      f"under each row: the tasks × seeds used", fontsize=10)
     index = 0
     for comparison, panels in tables:
-        colours = {row: f"C{number % 10}" for number, row in enumerate(dict.fromkeys(
-            row for _, bars in panels for row, _, _ in bars))}
+        drawn = dict.fromkeys(row for _, bars in panels for row, _, _ in bars)
+        order = [*comparison.rows, *(row for row in drawn if row not in comparison.rows)]
+        colours = {row: row_colour(order.index(row)) for row in drawn}
         for title, bars in panels:
             index += 1
             axes = drawing.add_subplot(lines, columns, index)

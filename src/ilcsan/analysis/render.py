@@ -144,7 +144,8 @@ def _md_comparison(comparison: TableComparison) -> list[str]:
         return []
     return ["### Telling the rows apart", "",
             f"{comparison.bootstrap.text}. Per row: the IQM and the mean over runs × tasks of its scores divided "
-            "by our DAN's mean on each task (the ratio the APR averages) or by the paper's published DAN mean. Per "
+            "by our DAN's mean on each task (the ratio the APR averages) or by the paper's published DAN mean, "
+            "each mean taken as exact: the interval holds the row's seed noise, not DAN's. Per "
             "pair: P(improvement), the chance that a run of one row scores above a run of the other on the same task, "
             "averaged over tasks (0.5: even), and the APR on the same runs (100 %: even); *better*/*worse*: the "
             "interval lies entirely above/below even. Runs are paired by seed: each task offers the seeds both rows "
