@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 from ray_cluster import ILCSAN, RAY, LoopbackNetwork, RayNode, alive, namespace_unavailable, open_paths
+from test_experiments import TINY_GRID
 
 pytest.importorskip("ray", reason="Ray is not installed (pip install 'ilcsan[ray]'); CI installs it")
 pytestmark = pytest.mark.slow
@@ -25,31 +26,16 @@ if reason := namespace_unavailable():
 
 PORT = 6390
 ADDRESS = f"127.0.0.1:{PORT}"
-GRID = """
-name = "cluster"
-caption = "Two small actors on two small tasks"
-tasks = ["Pendulum-v1", "InvertedPendulum-v4"]
-seeds = 1
-steps = {steps}
-eval_every = 150
-eval_episodes = 1
-
-[[rows]]
-slug = "ilc"
-label = "ILC-SAN 16"
-preset = "ilc-san"
-overrides = {{ hidden_width = 16 }}
-
-[[rows]]
-slug = "pop"
-label = "PopSAN 16"
-preset = "popsan"
-overrides = {{ hidden_width = 16 }}
-"""
 WORKERS_AT_OUR_PRIORITY = {"RAY_worker_niceness": "0"}
 """Ray lowers its workers' priority by 15 by default: on 2 cores beside another busy test worker they would starve."""
 SHORT_CONNECT = {"RAY_NUM_REDIS_GET_RETRIES": "3"}
 """For the drivers that must fail: Ray gives up on a refused connection after 3 tries (≈ 3 s) instead of 20."""
+
+
+def grid_text(steps: int) -> str:
+    """The tiny grid of ``test_experiments`` with one seed and ``steps`` (4 jobs: 2 tasks × 2 rows)."""
+    return TINY_GRID.replace('name = "tiny"', 'name = "cluster"').replace("seeds = 2", "seeds = 1") \
+        .replace("steps = 300", f"steps = {steps}")
 
 
 @pytest.fixture
@@ -85,7 +71,7 @@ def reproduce(network: LoopbackNetwork, tmp_path: Path, env: dict[str, str], add
               **popen) -> subprocess.Popen:
     tmp_path.mkdir(parents=True, exist_ok=True)
     grid = tmp_path / "cluster.toml"
-    grid.write_text(GRID.format(steps=steps))
+    grid.write_text(grid_text(steps))
     return subprocess.Popen(network.command([ILCSAN, "reproduce", str(grid), "--backend", "ray", "--address",
                                              address, "--out", str(tmp_path / "out")]),
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)
