@@ -413,6 +413,9 @@ def test_a_join_that_fails_is_told_by_its_cause():
     assert "this machine has none" in join_failure("10.0.0.5:6379", lost, refused, token_sent=False)
     assert join_failure("10.0.0.5:6379", lost, "", token_sent=True) == \
         "cannot join the Ray cluster at 10.0.0.5:6379: Failed to connect to Ray cluster at 10.0.0.5:6379"
+    no_token = ray.exceptions.AuthenticationError("Token authentication is enabled but no authentication token was "
+                                                  "found")  # what ray.init raises before connecting
+    assert join_failure("x:1", no_token, "", token_sent=True).startswith("RAY_AUTH_MODE=token, but this machine has")
     for line in (join_failure("x:1", lost, refused, token_sent=True), join_failure("x:1", mismatch.value, "", False)):
         assert "\n" not in line
 

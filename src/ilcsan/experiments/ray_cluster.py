@@ -112,7 +112,7 @@ def join_ray_cluster(address: str) -> str:
 
 def check_listening(address: str) -> None:
     """A UserError unless something accepts a TCP connection at ``HOST:PORT`` within :data:`PROBE_SECONDS`."""
-    host, _, port = address.rpartition(":")
+    host, _, port = address.split("://", 1)[-1].rpartition(":")  # ray://HOST:PORT (Ray Client) too
     if not host or not port.isdigit():
         raise UserError(f"--address {address!r} is not HOST:PORT (e.g. 10.0.0.5:6379) or auto")
     try:
@@ -173,12 +173,15 @@ def join_failure(address: str, error: BaseException, ray_log: str, token_sent: b
     """One line for a failed join: what went wrong and what to do (``ray_log``: what Ray wrote meanwhile)."""
     where = f"the Ray cluster at {address}"
     message = str(error)
-    if type(error).__name__ == "AuthenticationError" or any(word in ray_log for word in AUTH_REFUSED):
-        if token_sent and type(error).__name__ != "AuthenticationError":
+    copy_token = "copy the head node's ~/.ray/auth_token here, or set RAY_AUTH_TOKEN to what `ray get-auth-token` " \
+                 "prints on the head node"
+    if type(error).__name__ == "AuthenticationError":  # raised here, before connecting: token mode, no token
+        return f"{AUTH_MODE_VARIABLE}=token, but this machine has no Ray token: {copy_token}"
+    if any(word in ray_log for word in AUTH_REFUSED):
+        if token_sent:
             return (f"{where} refused this machine's Ray token: put the cluster's token (`ray get-auth-token` on "
                     "its head node prints it) in ~/.ray/auth_token or RAY_AUTH_TOKEN")
-        return (f"{where} asks for a Ray token and this machine has none: copy the head node's ~/.ray/auth_token "
-                "here, or set RAY_AUTH_TOKEN to what `ray get-auth-token` prints on the head node")
+        return f"{where} asks for a Ray token and this machine has none: {copy_token}"
     if versions := VERSION_MISMATCH.search(message):
         cluster_ray, cluster_python, own_ray, own_python = versions.groups()
         return (f"{where} runs Ray {cluster_ray} on Python {cluster_python}, this machine Ray {own_ray} on Python "
