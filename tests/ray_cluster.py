@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,6 +42,8 @@ class LoopbackNetwork:
                                        stdout=subprocess.PIPE, text=True)
         assert self.holder.stdout is not None and self.holder.stdout.readline().strip() == "up"
         self.inode = os.stat(f"/proc/{self.holder.pid}/ns/net").st_ino
+        self.ray_temp = Path(tempfile.mkdtemp(prefix="ray-", dir="/tmp"))
+        """Ray's ``--temp-dir``: short, as its socket paths must stay under 108 bytes (a pytest folder is too long)."""
 
     def command(self, argv: list[str]) -> list[str]:
         return ["nsenter", f"--target={self.holder.pid}", "--net", "--", *argv]
@@ -55,12 +59,13 @@ class LoopbackNetwork:
         return found
 
     def close(self) -> None:
-        """Kill whatever still runs in the namespace, then its holder."""
+        """Kill whatever still runs in the namespace, then its holder; remove Ray's temporary folder."""
         for pid in self.members():
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
         self.holder.kill()
         self.holder.wait()
+        shutil.rmtree(self.ray_temp, ignore_errors=True)
 
 
 class RayNode:

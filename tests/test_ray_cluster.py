@@ -60,8 +60,7 @@ def generate_token(env: dict[str, str]) -> str:
 
 
 def start_head(network: LoopbackNetwork, env: dict[str, str], tmp_path: Path, cpus: int = 1) -> RayNode:
-    temp = tmp_path.parent / f"r{os.getpid()}"  # Ray's socket paths must stay short
-    head = RayNode(network, ["--head", f"--port={PORT}", f"--num-cpus={cpus}", f"--temp-dir={temp}",
+    head = RayNode(network, ["--head", f"--port={PORT}", f"--num-cpus={cpus}", f"--temp-dir={network.ray_temp}",
                              "--include-dashboard=false"], env, tmp_path / "head.log")
     head.wait_started()
     return head
