@@ -27,7 +27,7 @@ if reason := namespace_unavailable():
 PORT = 6390
 ADDRESS = f"127.0.0.1:{PORT}"
 WORKERS_AT_OUR_PRIORITY = {"RAY_worker_niceness": "0"}
-"""Ray lowers its workers' priority by 15 by default: on 2 cores beside another busy test worker they would starve."""
+"""Ray lowers its workers' priority by default: on 2 cores beside another busy test worker they starved."""
 SHORT_CONNECT = {"RAY_NUM_REDIS_GET_RETRIES": "3"}
 """For the drivers that must fail: Ray gives up on a refused connection after 3 tries (≈ 3 s) instead of 20."""
 
@@ -189,8 +189,7 @@ def test_auto_with_rays_own_variables_and_one_line_failures(network, tmp_path):
     token = generate_token(cluster)
     head = start_head(network, cluster, tmp_path, cpus=2)
     try:
-        # --address auto with Ray's RAY_ADDRESS, the token in RAY_AUTH_TOKEN; the grid's runs are already
-        # there after the first call, so the second is told there is nothing to train
+        # --address auto with Ray's RAY_ADDRESS, the token in RAY_AUTH_TOKEN (HOME has none)
         env = environment(tmp_path / "empty", RAY_ADDRESS=ADDRESS, RAY_AUTH_TOKEN=token)
         code, printed, errors = finished(reproduce(network, tmp_path, env, "auto"))
         assert code == 0, errors

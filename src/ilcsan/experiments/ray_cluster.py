@@ -97,13 +97,12 @@ def join_ray_cluster(address: str) -> str:
     if address != "auto":
         check_listening(address)
     token = send_token_if_available()
-    with captured_stderr() as ray_log:
+    failure: Exception | None = None
+    with captured_stderr() as ray_log:  # the fd must be restored before the error is told
         try:
             ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
         except Exception as error:  # Ray raises ConnectionError, RuntimeError, ValueError, its AuthenticationError
             failure = error
-        else:
-            failure = None
     if failure is not None:
         raise UserError(join_failure(address, failure, ray_log.text, token)) from None
     joined = ray.get_runtime_context().gcs_address
