@@ -2,7 +2,7 @@
 through the actor per layer (its definition), side by side in one run, alternating rounds.
 
 A recalibration replays RECALIBRATION_BATCHES minibatches of RECALIBRATION_BATCH_SIZE states and pools each layer's
-statistics over them, layer by layer (:meth:`ilcsan.snn.actor.SpikingActor.recalibrated_statistics`). The actor is
+statistics over them, layer by layer (:func:`ilcsan.snn.normalization.recalibrated_statistics`). The actor is
 ILC-SAN's (2×256, T = 5) on a task's state and action sizes, float32, one torch thread, eager as in training. Run it on
 an otherwise idle machine:
 
@@ -19,11 +19,12 @@ import time
 import torch
 from speed import cpu_model
 
+from ilcsan.actors import build_actor
 from ilcsan.config import actor_config
 from ilcsan.rl.methods.care_bn import RECALIBRATION_BATCH_SIZE, RECALIBRATION_BATCHES
 from ilcsan.rl.tasks import TASK_SPECS
-from ilcsan.snn.actor import build_actor
-from ilcsan.snn.normalization import pool_statistics
+from ilcsan.snn.normalization import pool_statistics, recalibrated_statistics
+from ilcsan.snn.output import PassOptions
 
 
 def whole_passes(actor, batches):
@@ -31,7 +32,8 @@ def whole_passes(actor, batches):
     statistics, layer l's batch statistics pooled."""
     found = []
     for index in range(len(actor.layers)):
-        parts = [actor.run(batch, norm_statistics=tuple(found)).norm_statistics[index] for batch in batches]
+        options = PassOptions(statistics=tuple(found))
+        parts = [actor.run(batch, options=options).norm_statistics[index] for batch in batches]
         found.append(pool_statistics(parts, [batch.shape[1] for batch in batches]))
     return tuple(found)
 
@@ -50,7 +52,7 @@ def main() -> None:
     batches = [torch.randn(args.seeds, RECALIBRATION_BATCH_SIZE, spec.state_dim, generator=generator)
                for _ in range(RECALIBRATION_BATCHES)]
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    ways = {"whole passes": whole_passes, "stopping at the layer": type(actor).recalibrated_statistics}
+    ways = {"whole passes": whole_passes, "stopping at the layer": recalibrated_statistics}
     times: dict[str, list[float]] = {name: [] for name in ways}
     results = {}
     with torch.no_grad():

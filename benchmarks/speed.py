@@ -106,7 +106,7 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
     from torch.utils._python_dispatch import TorchDispatchMode
 
     from ilcsan.compute.matmul import gaining_products, product_call, product_times
-    from ilcsan.rl.algorithms import TD3
+    from ilcsan.rl.algorithms import TD3, TaskSpace
 
     matmuls = {torch.ops.aten.bmm.default, torch.ops.aten.baddbmm.default, torch.ops.aten.mm.default,
                torch.ops.aten.addmm.default}
@@ -123,8 +123,8 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(threads)
     k = len(seeds)
-    agent = TD3(actor_config(preset), TD3Config(), state_dim, action_dim, [1.0] * action_dim, [0.0] * action_dim,
-                seeds)
+    agent = TD3(actor_config(preset), TD3Config(), TaskSpace(state_dim, action_dim, [1.0] * action_dim,
+                                                            [0.0] * action_dim), seeds)
     generator = torch.Generator().manual_seed(0)
     batch = {"obs": torch.randn(k, 100, state_dim, generator=generator),
              "next_obs": torch.randn(k, 100, state_dim, generator=generator),
@@ -228,8 +228,8 @@ def sb3_alone(task: str, threads: int, steps: int, warmup: int, flush: bool) -> 
 
 def predict_latency_us(preset: str, task: str, calls: int = 2000, compiled: bool = False) -> float:
     """Median µs of ``Policy.predict`` for one observation, one thread: eager, or after ``Policy.compile``."""
+    from ilcsan.actors import build_actor
     from ilcsan.deploy.policy import Policy
-    from ilcsan.snn.actor import build_actor
 
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(1)
@@ -282,12 +282,12 @@ def path_speeds(task: str, preset: str, seeds: tuple[int, ...] = (0,)) -> dict[s
 
 def act_latency_us(task: str, calls: int = 3000) -> float:
     """Median µs of the training loop's batch-1 action (compiled ILC-SAN acting pass), one thread."""
-    from ilcsan.rl.algorithms import TD3
+    from ilcsan.rl.algorithms import TD3, ComputeSettings, TaskSpace
 
     torch.set_num_threads(1)
     state_dim, action_dim = TASK_SIZES[task]
-    agent = TD3(actor_config("ilc-san"), TD3Config(), state_dim, action_dim, [1.0] * action_dim,
-                [0.0] * action_dim, (0,), compile=True)
+    task_space = TaskSpace(state_dim, action_dim, [1.0] * action_dim, [0.0] * action_dim)
+    agent = TD3(actor_config("ilc-san"), TD3Config(), task_space, (0,), ComputeSettings(compile=True))
     state = np.random.default_rng(0).normal(size=(1, state_dim)).astype(np.float32)
     return median_call_us(lambda: agent.act(state), calls)
 

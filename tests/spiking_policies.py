@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ilcsan.actors import build_actor
 from ilcsan.config import INTRA_MASKS, actor_config
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.policy import Policy
-from ilcsan.snn.actor import build_actor
 
 
 def random_policy(preset: str = "ilc-san", state_dim: int = 11, action_dim: int = 3, seed: int = 0,

@@ -7,10 +7,11 @@ import itertools
 import pytest
 import torch
 
+from ilcsan.actors import build_actor
 from ilcsan.config import INTRA_MASKS as INTRA_VARIANTS
 from ilcsan.config import PRESETS, actor_config
 from ilcsan.errors import UserError
-from ilcsan.snn.actor import SpikingActor, build_actor
+from ilcsan.snn.actor import SpikingActor
 from ilcsan.snn.decoders import select_statistic
 
 

@@ -15,16 +15,18 @@ from torch.distributions.transforms import TanhTransform
 import ilcsan
 import ilcsan.errors
 from ilcsan.config import PRESETS, RunConfig, TD3Config, actor_config
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
 from ilcsan.rl.training import train
+from ilcsan.snn.output import PassOptions
 
 SMALL = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
 SCALE, OFFSET = [2.0, 1.0], [0.0, 0.5]
 
 
 def _agent(cls, preset="ilc-san", seeds=(0,), td3=None, **options):
-    return cls(actor_config(preset, **SMALL[preset]), td3 or TD3Config(critic_hidden=(16, 16)), 3, 2, SCALE, OFFSET,
-               seeds=seeds, **options)
+    return cls(actor_config(preset, **SMALL[preset]), td3 or TD3Config(critic_hidden=(16, 16)),
+               TaskSpace(3, 2, SCALE, OFFSET), seeds, ComputeSettings(**options))
 
 
 def _batch(seeds: int, size: int = 8, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -66,7 +68,7 @@ def test_sac_log_density_is_the_squashed_gaussians():
     states, noise = _batch(2)["obs"], torch.randn(2, 8, 2, generator=torch.Generator().manual_seed(3))
     with torch.no_grad():
         action, log_prob, mean = agent.sample(agent.actor, states, noise)
-        readout = agent.actor(states, with_preaction=True)[1]
+        readout = agent.actor(states, options=PassOptions(preaction=True))[1]
     log_std = readout[..., 2:].clamp(-20, 2)
     assert torch.equal(mean, readout[..., :2])
     squashed = TransformedDistribution(Normal(mean, log_std.exp()), [TanhTransform()])
@@ -113,7 +115,7 @@ def test_sac_acts_with_the_mean_and_deploys_only_the_means_populations(preset):
     agent = _agent(SAC, preset, seeds=(0, 1))
     states = _batch(2)["obs"]
     with torch.no_grad():
-        readout = agent.actor(states, with_preaction=True)[1]
+        readout = agent.actor(states, options=PassOptions(preaction=True))[1]
         deployed = agent.deployable_actor()
         expected = agent.offset + agent.scale * torch.tanh(readout[..., :2])
         torch.testing.assert_close(deployed(states), expected)
@@ -145,7 +147,8 @@ def test_every_preset_trains_and_deploys_with_ddpg_and_sac(cls, preset):
     (spiking presets through their surrogate gradients), the losses are finite, and the deployed actor gives one
     action per state inside the action bounds."""
     small = SMALL.get(preset, SMALL["ilc-san"])
-    agent = cls(actor_config(preset, **small), TD3Config(critic_hidden=(16, 16)), 3, 2, SCALE, OFFSET, seeds=(0, 1))
+    agent = cls(actor_config(preset, **small), TD3Config(critic_hidden=(16, 16)), TaskSpace(3, 2, SCALE, OFFSET),
+                (0, 1))
     before = [parameter.clone() for parameter in agent.actor.parameters()]
     for update in range(2):
         losses = agent.update(_batch(2, seed=update))

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 import torch
 
+from ilcsan.actors import build_actor
 from ilcsan.config import ActorConfig, actor_config
+from ilcsan.deploy.state import export_state
 from ilcsan.errors import UserError
-from ilcsan.snn.actor import build_actor, folded_actor
+from ilcsan.runs.checkpoint import module_state
+from ilcsan.snn.actor import SpikingActor
 from ilcsan.snn.normalization import (
     EPSILON,
     NormStatistics,
@@ -18,9 +22,12 @@ from ilcsan.snn.normalization import (
     batch_statistics,
     fold_into_linear,
     kalman_update,
+    kalman_update_,
     normalize,
     pool_statistics,
+    recalibrated_statistics,
 )
+from ilcsan.snn.output import PassOptions
 
 SPIKING_PRESETS = ("ilc-san", "popsan", "mdc-san", "akl")
 
@@ -178,7 +185,7 @@ def test_engines_agree_with_batch_statistics_values_statistics_and_gradients(pre
     state = torch.randn(2, 9, 3)
     results = {}
     for engine in ("fast", "reference"):
-        output = actor.run(state, engine=engine, norm_statistics="batch", membranes=True)
+        output = actor.run(state, engine=engine, options=PassOptions(statistics="batch"), membranes=True)
         actor.zero_grad()
         (output.action.square().sum() + output.membranes.square().mean()).backward()
         results[engine] = output, [parameter.grad.clone() for parameter in actor.parameters()]
@@ -197,7 +204,7 @@ def test_engines_agree_with_batch_statistics_values_statistics_and_gradients(pre
 def test_batch_statistics_of_the_first_layer_are_those_of_its_currents():
     actor = care_bn_actor()
     state = torch.randn(2, 9, 3)
-    output = actor.run(state, norm_statistics="batch")
+    output = actor.run(state, options=PassOptions(statistics="batch"))
     first = batch_statistics(actor.layers[0](output.layer_inputs[0]))
     torch.testing.assert_close(output.norm_statistics[0].mean, first.mean)
     torch.testing.assert_close(output.norm_statistics[0].var, first.var)
@@ -209,11 +216,11 @@ def test_gradients_flow_through_the_batch_statistics():
     grads = {}
     for mode in ("batch", "detached"):
         if mode == "batch":
-            output = actor.run(state, norm_statistics="batch")
+            output = actor.run(state, options=PassOptions(statistics="batch"))
         else:  # the very same statistics as constants
-            statistics = actor.run(state, norm_statistics="batch").norm_statistics
+            statistics = actor.run(state, options=PassOptions(statistics="batch")).norm_statistics
             detached = tuple(type(s)(s.mean.detach(), s.var.detach()) for s in statistics)
-            output = actor.run(state, norm_statistics=detached)
+            output = actor.run(state, options=PassOptions(statistics=detached))
         actor.zero_grad()
         output.action.square().sum().backward()
         grads[mode] = output.action.detach(), actor.layers[0].weight.grad.clone()
@@ -224,11 +231,12 @@ def test_gradients_flow_through_the_batch_statistics():
 
 def test_the_kalman_update_of_the_actor_moves_its_buffers_in_place():
     actor = care_bn_actor()
-    statistics = actor.run(torch.randn(2, 9, 3), norm_statistics="batch").norm_statistics
+    statistics = actor.run(torch.randn(2, 9, 3), options=PassOptions(statistics="batch")).norm_statistics
     expected = [kalman_update(norm.running_state(), batch, 9) for norm, batch in zip(actor.norms, statistics,
                                                                                     strict=True)]
     buffers = [norm.running_mean for norm in actor.norms]
-    actor.update_running_statistics_(statistics, samples=9)
+    for norm, batch in zip(actor.norms, statistics, strict=True):
+        kalman_update_(norm.running_state(), batch, samples=9)
     for norm, want, buffer in zip(actor.norms, expected, buffers, strict=True):
         assert norm.running_mean is buffer  # in place: the tensors a training program holds stay valid
         for got, value in zip(norm.running_state(), want, strict=True):
@@ -241,18 +249,20 @@ def test_recalibration_gives_the_statistics_of_all_batches_in_one_pass():
     pass over the 16 states together with layers before l normalised with their recalibrated statistics."""
     actor = care_bn_actor()
     randomise_running_statistics(actor)
-    actor.update_running_statistics_(actor.run(torch.randn(2, 9, 3), norm_statistics="batch").norm_statistics, 9)
+    batch = actor.run(torch.randn(2, 9, 3), options=PassOptions(statistics="batch")).norm_statistics
+    for norm, layer_statistics in zip(actor.norms, batch, strict=True):
+        kalman_update_(norm.running_state(), layer_statistics, 9)
     before = {name: tensor.clone() for name, tensor in actor.state_dict().items()}
     assert before["norms.0.mean_innovation"].abs().sum() > 0
     batches = [torch.randn(2, size, 3) for size in (5, 8, 3)]
-    recalibrated = actor.recalibrated_statistics(batches)
+    recalibrated = recalibrated_statistics(actor, batches)
     assert all(torch.equal(tensor, before[name]) for name, tensor in actor.state_dict().items())
     together = torch.cat(batches, dim=1)
     for index, statistics in enumerate(recalibrated):
-        direct = actor.run(together, norm_statistics=recalibrated[:index]).norm_statistics[index]
+        direct = actor.run(together, options=PassOptions(statistics=recalibrated[:index])).norm_statistics[index]
         torch.testing.assert_close(statistics.mean, direct.mean, rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(statistics.var, direct.var, rtol=1e-5, atol=1e-6)
-    actor.set_running_statistics_(recalibrated)
+    actor.norms.set_running_(recalibrated)
     for norm, statistics in zip(actor.norms, recalibrated, strict=True):
         assert torch.equal(norm.running_mean, statistics.mean) and torch.equal(norm.running_var, statistics.var)
     assert torch.equal(actor.norms[0].mean_innovation, before["norms.0.mean_innovation"])  # P's kept
@@ -272,9 +282,10 @@ def test_recalibration_stopping_at_each_layer_equals_whole_passes(encoder, engin
     found: list = []
     with torch.no_grad():
         for index in range(len(actor.layers)):
-            parts = [actor.run(batch, norm_statistics=tuple(found)).norm_statistics[index] for batch in batches]
+            parts = [actor.run(batch, options=PassOptions(statistics=tuple(found))).norm_statistics[index]
+                     for batch in batches]
             found.append(pool_statistics(parts, [7, 4]))
-        recalibrated = actor.recalibrated_statistics(batches)
+        recalibrated = recalibrated_statistics(actor, batches)
     assert len(recalibrated) == 3
     for ours, whole in zip(recalibrated, found, strict=True):
         for got, want in ((ours.mean, whole.mean), (ours.var, whole.var)):
@@ -284,36 +295,37 @@ def test_recalibration_stopping_at_each_layer_equals_whole_passes(encoder, engin
                 torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
 
 
-def test_running_statistics_are_the_buffers_the_target_actor_averages():
-    actor = care_bn_actor()
-    tensors = actor.running_statistics()
-    assert len(tensors) == 2 * len(actor.layers)
-    assert tensors[0] is actor.norms[0].running_mean and tensors[1] is actor.norms[0].running_var
-    parameters = {id(parameter) for parameter in actor.parameters()}
-    assert not any(id(tensor) in parameters for tensor in tensors)
+def folded_copy(actor) -> SpikingActor:
+    """An actor without normalisation holding the export fold of ``actor``'s seed 0
+    (:meth:`~ilcsan.snn.normalization.LayerNormalizations.export_fold`, what every export runs), in its dtype."""
+    state = {name: tensor.detach()[0] for name, tensor in module_state(actor).items()}
+    folded = actor.norms.export_fold(state, "norms")
+    config = dataclasses.replace(actor.config, normalization="none")
+    plain = build_actor(config, actor.state_dim, actor.action_dim, [1.0] * actor.action_dim)
+    plain = plain.to(next(actor.parameters()).dtype)
+    plain.load_state_dict({name: tensor[None] for name, tensor in folded.items()})
+    return plain
 
 
 @pytest.mark.parametrize("preset", SPIKING_PRESETS)
-def test_the_folded_actor_acts_as_the_normalised_one(preset):
-    actor = care_bn_actor(preset).double()
+def test_the_export_fold_acts_as_the_normalised_actor(preset):
+    actor = care_bn_actor(preset, seeds=(0,)).double()
     randomise_running_statistics(actor)
-    folded = folded_actor(actor)
-    state = torch.randn(2, 9, 3, dtype=torch.float64)
+    folded = folded_copy(actor)
+    state = torch.randn(1, 9, 3, dtype=torch.float64)
     for engine in ("fast", "reference"):
         ours, theirs = actor.run(state, engine=engine, membranes=True), folded.run(state, engine=engine, membranes=True)
         torch.testing.assert_close(theirs.action, ours.action, rtol=0, atol=1e-10)
         torch.testing.assert_close(theirs.membranes, ours.membranes, rtol=0, atol=1e-10)
-    assert folded.norms is None and folded.config.normalization == "none"
-    plain = build_actor(actor_config(preset, hidden=(24, 16)), 3, 2, [1.0, 1.0], seeds=(0, 1))
-    assert set(folded.state_dict()) == set(plain.state_dict())  # exports as an actor without normalisation
-    assert actor.norms is not None  # the original is unchanged
+    assert folded.norms is None and actor.norms is not None  # the original is unchanged
+    assert set(export_state(actor)) == set(folded.state_dict())  # what every export holds: no normalisation left
 
 
-def test_the_folded_actor_agrees_in_float32_too():
-    actor = care_bn_actor()
+def test_the_export_fold_agrees_in_float32_too():
+    actor = care_bn_actor(seeds=(0,))
     randomise_running_statistics(actor)
-    state = torch.randn(2, 9, 3)
-    ours, theirs = actor.run(state, membranes=True), folded_actor(actor).run(state, membranes=True)
+    state = torch.randn(1, 9, 3)
+    ours, theirs = actor.run(state, membranes=True), folded_copy(actor).run(state, membranes=True)
     torch.testing.assert_close(theirs.membranes, ours.membranes, rtol=0, atol=1e-5)
 
 
@@ -329,9 +341,9 @@ def test_dan_refuses_care_bn_in_one_line():
 def test_an_actor_without_normalisation_refuses_batch_statistics():
     actor = build_actor(actor_config("ilc-san", hidden=(8,)), 3, 2, [1.0, 1.0])
     with pytest.raises(UserError, match="does not normalise"):
-        actor.run(torch.zeros(1, 2, 3), norm_statistics="batch")
+        actor.run(torch.zeros(1, 2, 3), options=PassOptions(statistics="batch"))
     with pytest.raises(UserError, match="running, batch"):
-        care_bn_actor().run(torch.zeros(2, 2, 3), norm_statistics="batches")
+        care_bn_actor().run(torch.zeros(2, 2, 3), options=PassOptions(statistics="batches"))
 
 
 def test_config_round_trip_and_a_config_saved_before_the_setting_loads_as_none():

@@ -15,12 +15,14 @@ from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
 from ilcsan.rl.algorithms.base import first_readout
 from ilcsan.rl.training import Trainer
 from ilcsan.rl.validation import validate_run
 from ilcsan.runs.checkpoint import module_state
 from ilcsan.snn.normalization import kalman_update
+from ilcsan.snn.output import PassOptions
 
 SMALL = dict(hidden=(16,), population_in=4, population_out=4, timesteps=3)
 CRITIC = TD3Config(critic_hidden=(16, 16))
@@ -28,7 +30,7 @@ CRITIC = TD3Config(critic_hidden=(16, 16))
 
 def _agent(cls=TD3, preset="ilc-san", seeds=(0, 1), td3=CRITIC, **options):
     config = actor_config(preset, normalization="care-bn", **SMALL)
-    return cls(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=seeds, **options)
+    return cls(config, td3, TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), seeds, ComputeSettings(**options))
 
 
 def _batch(agent, size: int = 16, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -61,7 +63,7 @@ def test_the_actor_loss_normalises_with_the_batch_statistics():
         return -agent.critic(batch["obs"], action, first_only=True).mean(dim=-1).sum()
 
     ours = actor_gradients(agent.actor_loss(batch))
-    with_batch = actor_gradients(minus_q(agent.actor(batch["obs"], norm_statistics="batch")))
+    with_batch = actor_gradients(minus_q(agent.actor(batch["obs"], options=PassOptions(statistics="batch"))))
     with_running = actor_gradients(minus_q(agent.actor(batch["obs"])))
     for mine, theirs in zip(ours, with_batch, strict=True):
         torch.testing.assert_close(mine, theirs)
@@ -89,7 +91,7 @@ def test_an_actor_step_moves_the_running_statistics_by_the_kalman_update_of_its_
         assert agent.update(batch)["actor_loss"] is None
     assert all(torch.equal(now, then) for now, then in zip(_running(agent.actor), before, strict=True))
     with torch.no_grad():
-        statistics = agent.actor.run(batch["obs"], norm_statistics="batch").norm_statistics
+        statistics = agent.actor.run(batch["obs"], options=PassOptions(statistics="batch")).norm_statistics
     expected = [value for norm, layer in zip(agent.actor.norms, statistics, strict=True)
                 for value in kalman_update(norm.running_state(), layer, samples=16)]
     biases = [layer.bias.clone() for layer in agent.actor.layers]
@@ -211,7 +213,8 @@ def _check_recalibration(trainer: Trainer, plain: Trainer, seeds) -> None:
     together, found = torch.as_tensor(states), []
     for index, norm in enumerate(trainer.agent.actor.norms):
         with torch.no_grad():
-            found.append(trainer.agent.actor.run(together, norm_statistics=tuple(found)).norm_statistics[index])
+            pass_options = PassOptions(statistics=tuple(found))
+            found.append(trainer.agent.actor.run(together, options=pass_options).norm_statistics[index])
         torch.testing.assert_close(norm.running_mean, found[-1].mean, rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(norm.running_var, found[-1].var, rtol=1e-5, atol=1e-6)
         assert not torch.equal(norm.running_mean, plain.agent.actor.norms[index].running_mean)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from ilcsan.actors import build_actor
 from ilcsan.analysis.report import write_report
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.training import Trainer
-from ilcsan.snn.actor import build_actor
 from ilcsan.snn.diagnostics import (
     DIAGNOSTICS,
     STUCK_EVALUATIONS,

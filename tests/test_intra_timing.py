@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from ilcsan.actors import build_actor
 from ilcsan.analysis.energy import energy_report, measure_firing_rates
 from ilcsan.config import actor_config
 from ilcsan.deploy import DeployedActor
@@ -16,7 +17,6 @@ from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.nir import build_graph, simulate_nir
 from ilcsan.deploy.policy import Policy
 from ilcsan.deploy.quantize import quantize_bundle
-from ilcsan.snn.actor import build_actor
 
 # One output population of P = 2 CLIF neurons (α_C 0.5, α_V 0.75, V_th 0.5), T = 2, a constant feed-forward drive
 # X = (0.3, 0) at both steps (the output fc's bias; its weights are zero), W_intra with one lateral weight 1.0 from

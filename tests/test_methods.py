@@ -22,6 +22,7 @@ from ilcsan.config import actor_config, check_settings, td3_config_class
 from ilcsan.errors import UserError
 from ilcsan.methods import Declared
 from ilcsan.rl.adam import Adam
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.methods import Exploration, MethodContext
 from ilcsan.rl.training import train
@@ -40,7 +41,7 @@ class UniformNoiseWithALevel(Exploration):
     def __init__(self, context: MethodContext):
         self.module = Level(len(context.seeds))
         self.adam = Adam(self.module, context.actor_config.learning_rate)
-        self.scale, self.offset = context.action_scale, context.action_offset
+        self.scale, self.offset = context.task.action_scale, context.task.action_offset
         self.width = context.td3.toy_width
         self.explored = 0
 
@@ -166,8 +167,9 @@ def test_its_loss_term_runs_inside_the_compiled_update_as_it_does_uncompiled(toy
 
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
     td3 = td3_config_class()(exploration="toy", critic_hidden=(16, 16))
-    eager = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8))
-    compiled = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7, 8), compile=True)
+    task = TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0])
+    eager = TD3(config, td3, task, (7, 8))
+    compiled = TD3(config, td3, task, (7, 8), ComputeSettings(compile=True))
     rng = np.random.default_rng(5)
     assert_same_updates(eager, compiled, [_random_batch(rng, 2, 16, 3, 2) for _ in range(6)], atol=2e-5)
     levels = [agent.exploration.module.level.detach() for agent in (eager, compiled)]

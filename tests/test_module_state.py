@@ -14,17 +14,20 @@ import pytest
 import torch
 from spiking_policies import observations, random_policy
 
-import ilcsan.snn.actor
+import ilcsan.actors
+from ilcsan.actors import build_actor
 from ilcsan.cli import main
 from ilcsan.compute.programs import module_tensors
 from ilcsan.config import ActorConfig, TD3Config, actor_config
-from ilcsan.deploy import DeployedActor, state
+from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
 from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
+from ilcsan.rl.agent_settings import TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.runs.checkpoint import load_state, module_state, slice_state
-from ilcsan.snn.actor import SpikingActor, build_actor
+from ilcsan.snn.actor import SpikingActor
+from ilcsan.snn.output import PLAIN_PASS, PassOptions
 
 
 class RunningMeanActor(SpikingActor):
@@ -35,21 +38,21 @@ class RunningMeanActor(SpikingActor):
         super().__init__(*args, **kwargs)
         self.register_buffer("running_mean", torch.zeros(self.layers[0].weight.shape[0], self.state_dim))
 
-    def forward(self, state: torch.Tensor, noise=None, with_preaction: bool = False):
+    def forward(self, state: torch.Tensor, options: PassOptions = PLAIN_PASS):
         if self.training:
             with torch.no_grad():
                 self.running_mean.lerp_(state.mean(dim=1), 0.25)
-        return super().forward(state - self.running_mean.unsqueeze(1), noise, with_preaction)
+        return super().forward(state - self.running_mean.unsqueeze(1), options)
 
 
 @pytest.fixture
 def running_mean_actors(monkeypatch):
     """Every spiking actor ``build_actor`` builds (in the agent, in a loaded policy) is a :class:`RunningMeanActor`."""
-    monkeypatch.setattr(ilcsan.snn.actor, "SpikingActor", RunningMeanActor)
+    monkeypatch.setattr(ilcsan.actors, "SpikingActor", RunningMeanActor)
 
 
 def _agent(seeds) -> TD3:
-    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds)
+    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), seeds)
 
 
 def _train_once(agent: TD3) -> None:
@@ -219,13 +222,14 @@ def test_export_refuses_a_buffer_from_the_command_line_in_one_line(running_mean_
     assert not (tmp_path / "actor.npz").exists()
 
 
-def test_a_fold_registered_for_a_buffer_makes_the_export_act_as_predict(running_mean_actors, monkeypatch):
-    def fold_into_receptive_fields(folded, name):
+def test_a_fold_declared_by_the_module_that_keeps_a_buffer_makes_the_export_act_as_predict(running_mean_actors,
+                                                                                           monkeypatch):
+    def fold_into_receptive_fields(self, folded, prefix):
         """s − m − μ = s − (μ + m): the running mean moves the Gaussian receptive fields' centres."""
-        mean = folded.pop(name)
+        mean = folded.pop("running_mean")
         return {**folded, "encoder.mu": folded["encoder.mu"] + mean[:, None]}
 
-    monkeypatch.setitem(state.FOLDS, "running_mean", fold_into_receptive_fields)
+    monkeypatch.setattr(RunningMeanActor, "export_fold", fold_into_receptive_fields, raising=False)
     policy = _running_mean_policy()
     arrays = bundle_arrays(policy)
     assert "running_mean" not in arrays

@@ -9,19 +9,22 @@ import numpy as np
 import pytest
 import torch
 
+from ilcsan.actors import build_actor
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import train
-from ilcsan.snn.actor import build_actor
 from ilcsan.snn.noise import NeuronNoise, autocorrelation, fft_length, window_covariance
+from ilcsan.snn.output import PassOptions
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
 NOISY = TD3Config(exploration="noisy", noisy_return_reference=100.0)
 
 
 def _agent(td3: TD3Config = NOISY, seeds=(0,), actor=SMALL_ACTOR, **options) -> TD3:
-    return TD3(actor, td3, 3, 2, [2.0, 1.0], [0.0, 0.5], seeds=seeds, episode_steps=50, **options)
+    return TD3(actor, td3, TaskSpace(3, 2, [2.0, 1.0], [0.0, 0.5], episode_steps=50), seeds,
+               ComputeSettings(**options))
 
 
 def _random_noise(actor, batch: int, seed: int, scale: float = 0.3) -> NeuronNoise:
@@ -43,9 +46,9 @@ def test_the_layer_major_pass_adds_the_noise_where_algorithm_1_would(preset):
     state = torch.randn(1, 5, 4, generator=torch.Generator().manual_seed(0))
     noise = _random_noise(actor, 5, 1)
     leaves = [tensor.requires_grad_() for tensor in (*noise.charge, *noise.transmission, noise.decoder)]
-    fast = actor.run(state, noise=noise).action
+    fast = actor.run(state, options=PassOptions(noise=noise)).action
     grads_fast = torch.autograd.grad(fast.sum(), leaves)
-    slow = actor.run(state, engine="reference", noise=noise).action
+    slow = actor.run(state, engine="reference", options=PassOptions(noise=noise)).action
     grads_slow = torch.autograd.grad(slow.sum(), leaves)
     assert torch.allclose(fast, slow, atol=1e-6)
     for a, b in zip(grads_fast, grads_slow, strict=True):
@@ -54,7 +57,7 @@ def test_the_layer_major_pass_adds_the_noise_where_algorithm_1_would(preset):
         assert not torch.allclose(fast, actor(state), atol=1e-3)  # the noise changes the action
         zero = NeuronNoise(*(tuple(torch.zeros_like(x) for x in part) for part in noise[:2]),
                            torch.zeros_like(noise.decoder))
-        assert torch.equal(actor(state, noise=zero), actor(state))
+        assert torch.equal(actor(state, options=PassOptions(noise=zero)), actor(state))
 
 
 def test_transmission_noise_reaches_the_intra_layer_connections_and_not_the_reset():
@@ -159,8 +162,9 @@ def test_a_compiled_noisy_agent_updates_like_the_eager_one():
     from test_training import assert_same_updates
 
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    eager = TD3(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20)
-    compiled = TD3(config, NOISY, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), episode_steps=20, compile=True)
+    task = TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0], episode_steps=20)
+    eager = TD3(config, NOISY, task, (7,))
+    compiled = TD3(config, NOISY, task, (7,), ComputeSettings(compile=True))
     for agent in (eager, compiled):
         agent.exploration.module.weights = torch.tensor([0.8])
     rng = np.random.default_rng(4)

@@ -8,14 +8,16 @@ import pytest
 import torch
 
 from ilcsan.config import TD3Config, actor_config
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import SAC, TD3
+from ilcsan.snn.output import PassOptions
 
 SMALL = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
 
 
 def _agent(preset: str, penalty: float, compile: bool = False) -> TD3:
     return TD3(actor_config(preset, **SMALL[preset]), TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty),
-                    3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=compile)
+               TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), (7, 8), ComputeSettings(compile=compile))
 
 
 def _batch(agent: TD3, seed: int = 1) -> dict[str, torch.Tensor]:
@@ -75,9 +77,10 @@ def test_the_compiled_update_with_the_penalty_equals_the_eager_one(preset):
 def test_sac_adds_the_penalty_of_its_mean_through_the_same_loss_term():
     """SAC's actor loss gets λ·mean(μ²) of its pre-tanh mean μ from the same loss term as TD3's, and only when λ > 0."""
     config = actor_config("ilc-san", **SMALL["ilc-san"])
-    plain, penalised = (SAC(config, TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty), 3, 2, [1.0, 2.0],
-                            [0.0, 0.5], seeds=(7, 8)) for penalty in (0.0, 0.25))
-    assert not plain.loss_terms and [type(term).__name__ for term in penalised.loss_terms] == ["PreactionPenalty"]
+    plain, penalised = (SAC(config, TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty),
+                            TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), (7, 8)) for penalty in (0.0, 0.25))
+    terms = [type(term).__name__ for term in penalised.actor_methods.loss_terms]
+    assert not plain.actor_methods.loss_terms and terms == ["PreactionPenalty"]
     batch = {**_batch(plain), "noise": plain.standard_noise(32)}
     losses = []
     with torch.no_grad():
@@ -85,7 +88,7 @@ def test_sac_adds_the_penalty_of_its_mean_through_the_same_loss_term():
             tensors = agent.tensors()
             losses.append(agent.actor_loss(tensors["actor"], tensors["actor_buffers"], tensors["critic"],
                                            tensors["entropy"][0].exp(), batch)[0])
-        mean = penalised.actor(batch["obs"], with_preaction=True)[1][..., :2]
+        mean = penalised.actor(batch["obs"], options=PassOptions(preaction=True))[1][..., :2]
     expected = sum(0.25 * float((mean[k] ** 2).mean()) for k in range(2))
     assert expected > 0.01
     assert float(losses[1] - losses[0]) == pytest.approx(expected, rel=1e-5)

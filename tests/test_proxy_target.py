@@ -13,6 +13,7 @@ import torch
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.methods.proxy_target import PROXY_HIDDEN
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.algorithms.td3 import PolyakTarget
 from ilcsan.rl.methods.proxy_target import ProxyTarget
@@ -23,7 +24,7 @@ PROXY_TD3 = TD3Config(target_actor="proxy", target_noise=0.0)
 
 
 def _agent(td3: TD3Config, seeds=(0,), actor=SMALL_ACTOR) -> TD3:
-    return TD3(actor, td3, 3, 2, [2.0, 1.0], [0.0, 0.5], seeds=seeds)
+    return TD3(actor, td3, TaskSpace(3, 2, [2.0, 1.0], [0.0, 0.5]), seeds)
 
 
 def _states(rng, seeds: int, batch: int = 64) -> torch.Tensor:
@@ -153,8 +154,9 @@ def test_a_compiled_proxy_agent_updates_like_the_eager_one():
     steps."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
     td3 = TD3Config(target_actor="proxy", proxy_iterations=2)
-    eager = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,))
-    compiled = TD3(config, td3, 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(7,), compile=True)
+    task = TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0])
+    eager = TD3(config, td3, task, (7,))
+    compiled = TD3(config, td3, task, (7,), ComputeSettings(compile=True))
     from test_training import assert_same_updates
 
     rng = np.random.default_rng(4)

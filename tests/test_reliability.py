@@ -324,7 +324,7 @@ def test_diverging_loss_stops_the_run(tmp_path, capsys, faulty):
     # rewards of 1e30 from step 151 on: the critic's squared error overflows float32 at the next update
     code, _, err = cli(capsys, "train", "--task", "ilcsan-test/HugeRewards-v0", *FAULT_OPTIONS,
                        "--out", tmp_path / "run")
-    line = assert_stopped_cleanly(tmp_path / "run", code, err, "TD3 loss diverged")
+    line = assert_stopped_cleanly(tmp_path / "run", code, err, "training loss diverged")
     assert any(f"step {step}:" in line for step in (175, 200, 225, 250, 275, 300)), line
 
 
@@ -340,7 +340,7 @@ def test_nan_loss_is_caught_at_the_update_chunk_it_appears(tmp_path, capsys, mon
 
     monkeypatch.setattr(TD3, "critic_loss", poisoned)
     code, _, err = cli(capsys, "train", "--task", "Pendulum-v1", *FAULT_OPTIONS, "--out", tmp_path / "run")
-    assert_stopped_cleanly(tmp_path / "run", code, err, "step 175:", "TD3 loss diverged", "critic nan")
+    assert_stopped_cleanly(tmp_path / "run", code, err, "step 175:", "training loss diverged", "critic nan")
 
 
 # ------------------------------------------------------------------------------------------------

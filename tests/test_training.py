@@ -14,6 +14,7 @@ from ilcsan.compute.matmul import MatmulPath, onednn_available
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl import training
+from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import Trainer, train
 
@@ -33,7 +34,7 @@ def read_metrics(path):
 
 
 def test_critic_target_uses_min_of_twins_and_ignores_truncation():
-    agent = TD3(actor_config("dan", hidden=(8,)), TD3Config(target_noise=0.0), 3, 1, [2.0], [0.0], seeds=(0,))
+    agent = TD3(actor_config("dan", hidden=(8,)), TD3Config(target_noise=0.0), TaskSpace(3, 1, [2.0], [0.0]), (0,))
     batch = {"obs": torch.zeros(1, 4, 3), "action": torch.zeros(1, 4, 1), "reward": torch.ones(1, 4),
              "next_obs": torch.ones(1, 4, 3), "terminal": torch.tensor([[0.0, 1.0, 0.0, 1.0]])}
     with torch.no_grad():
@@ -49,8 +50,8 @@ def test_critic_target_uses_min_of_twins_and_ignores_truncation():
 
 def test_each_seed_of_an_ensemble_updates_like_a_single_run():
     config = actor_config("ilc-san", hidden=(16, 16))
-    many = TD3(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(4, 11))
-    single = TD3(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(11,))
+    many = TD3(config, TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (4, 11))
+    single = TD3(config, TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (11,))
     rng = np.random.default_rng(0)
     for _ in range(4):
         arrays = {"obs": rng.normal(size=(2, 32, 3)), "action": rng.uniform(-1, 1, (2, 32, 2)),
@@ -106,9 +107,9 @@ def test_compiled_update_program_equals_the_eager_update(preset, path):
     small = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
     config = actor_config(preset, **small[preset])
     td3 = TD3Config(critic_hidden=(16, 16))
-    eager = TD3(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), matmul=MatmulPath(path))
-    compiled = TD3(config, td3, 3, 2, [1.0, 2.0], [0.0, 0.5], seeds=(7, 8), compile=True,
-                        matmul=MatmulPath(path))
+    task = TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5])
+    eager = TD3(config, td3, task, (7, 8), ComputeSettings(matmul=MatmulPath(path)))
+    compiled = TD3(config, td3, task, (7, 8), ComputeSettings(compile=True, matmul=MatmulPath(path)))
     assert eager.critic_step.__func__ is TD3._critic_step  # the same function, uncompiled
     rng = np.random.default_rng(1)
     batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
@@ -328,7 +329,7 @@ def test_compiled_acting_calls_inductor_directly_and_sees_weights_changed_in_pla
     """The acting program resolves every input of the compiled graph (so it runs without dynamo's frame entry)
     and, holding the parameters themselves, acts with weights changed in place as the eager actor does."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    agent = TD3(config, TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds=(0, 1), compile=True)
+    agent = TD3(config, TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (0, 1), ComputeSettings(compile=True))
     state = np.random.default_rng(0).normal(size=(2, 3)).astype(np.float32)
     before = agent.act(state)
     (program,) = agent.actor_fn.programs.values()

@@ -15,6 +15,7 @@ import torch
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
+from ilcsan.rl.agent_settings import TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.callbacks import ProgressReport, TensorBoardLog, best_so_far
 from ilcsan.rl.evaluation import episode_seed, evaluate_policy, run_lockstep, training_evaluation_seed
@@ -56,7 +57,7 @@ def test_open_for_training_refuses_an_existing_run_and_finds_a_partial_checkpoin
 
 # ------------------------------------------------------------------------------ per-seed checkpoints
 def _agent(seeds):
-    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], seeds)
+    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), seeds)
 
 
 def _train_once(agent):
@@ -92,7 +93,7 @@ def test_seed_states_stack_back_into_an_ensemble_in_any_order():
     for (name, mine), (_, theirs) in zip(swapped.critic.named_parameters(), trained.critic.named_parameters(),
                                          strict=True):
         assert torch.equal(mine[:2], theirs[2:]) and torch.equal(mine[2:], theirs[:2]), name
-    other = TD3(actor_config("ilc-san", hidden=(4, 4)), TD3Config(), 3, 2, [1.0, 1.0], [0.0, 0.0], (0, 1))
+    other = TD3(actor_config("ilc-san", hidden=(4, 4)), TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (0, 1))
     with pytest.raises(UserError, match="has shape"):
         other.load_seed_states(states)
 

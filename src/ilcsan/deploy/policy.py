@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..actors import build_actor
 from ..compute.programs import CompiledPerShape
 from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig
 from ..errors import UserError
@@ -26,7 +27,6 @@ from ..rl.normalizer import RunningNormalizer
 from ..rl.tasks import action_bounds, make_env
 from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT, missing_state, module_state
 from ..runs.directory import CHECKPOINT, POLICY, RunDirectory
-from ..snn.actor import build_actor
 from .runtime.host import HostSide
 
 

@@ -11,38 +11,34 @@ Around the loop, each in its own module:
 
 - :class:`~ilcsan.rl.rollout.TrainingEnvironments`: the K environments and their running episodes;
 - :func:`~ilcsan.rl.evaluation.run_lockstep`: the evaluation episodes;
+- :mod:`~ilcsan.rl.run_setup`: building the run's parts, in an order that lets a run that cannot start change nothing;
 - :func:`~ilcsan.runs.checkpoint.open_for_training`: the folders (refuse, check, lock, clean up);
 - :class:`~ilcsan.runs.checkpoint.TrainingCheckpoints`: checkpoints, best policy, metrics, results, provenance, resume;
+- :mod:`~ilcsan.rl.seed_state`: the layout of a seed's checkpoint, policy and result;
 - :mod:`~ilcsan.rl.callbacks`: the progress bar, the evaluation lines and TensorBoard.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
-from ..compute.process import ProcessSettings, apply_to_process
+from ..compute.process import ProcessSettings
 from ..config import RunConfig
 from ..errors import TrainingDiverged
-from ..runs import provenance
-from ..runs.checkpoint import TrainingCheckpoints, as_arrays, as_tensors, open_for_training, slice_state
-from ..runs.directory import RunDirectory, RunFileError, run_directories
+from ..runs.directory import RunDirectory, run_directories
 from ..snn.diagnostics import EvaluationActions
-from .algorithms import build_algorithm
-from .callbacks import Callbacks, ProgressReport, TensorBoardLog
+from . import run_setup
+from . import seed_state as per_seed
+from .callbacks import Callbacks
 from .evaluation import replay_diagnostics, run_lockstep, training_evaluation_seed
-from .matmul_choice import choose_matmul_path, describe_matmul_choice, recorded_matmul_path
 from .normalizer import RunningNormalizer
-from .ram import check_memory
 from .replay import ReplayBuffer
 from .rollout import TrainingEnvironments, check_finite
-from .tasks import make_envs
 from .validation import validate_run
 
 LOSS_LIMIT = 1e12
@@ -62,54 +58,13 @@ class Trainer:
         self.locks: list = []
         self.callbacks = Callbacks()
         self.eval_envs: list = []
-        contact_forces = config.task_contact_forces()
-        self.environments = TrainingEnvironments(config.task, config.seeds, contact_forces)  # the task builds: write
+        # the task builds first: a run that cannot start changes nothing
+        self.environments = TrainingEnvironments(config.task, config.seeds, config.task_contact_forces())
         try:
-            apply_to_process(config.threads, config.matmul, config.device)  # once the task builds: a run that
-            # cannot start changes nothing
-            for _ in config.seeds:  # appended one seed at a time: close() finds every environment built
-                self.eval_envs.append(make_envs(config.task, config.eval_episodes, contact_forces=contact_forces))
-            state_dim, action_dim = self.environments.state_dim, self.environments.action_dim
-            check_memory(config, state_dim, action_dim)
-            self.locks, resumable = open_for_training(self.directories, resume, log)
-            kept = self._recorded_matmul_path() if resumable else None
-            matmul, self.matmul = kept or choose_matmul_path(config, state_dim, action_dim,
-                                                             self.environments.episode_steps)
-            log(describe_matmul_choice(self.matmul))
-            self.agent = build_algorithm(config, state_dim, action_dim, self.environments.action_scale,
-                                         self.environments.action_offset, self.environments.episode_steps, matmul)
-            self.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim,
-                                       min(config.td3.replay_size, config.steps))
-            self.normalizer = RunningNormalizer(len(config.seeds), state_dim)
-            self.rngs = [np.random.default_rng(seed) for seed in config.seeds]
-            self.step, self.wall_seconds = 0, 0.0
-            self.evaluations: list[list[dict[str, float]]] = [[] for _ in config.seeds]
-            self.checkpoints = TrainingCheckpoints(self.directories, log)
-            if resumable:
-                self.checkpoints.restore(self, config, state_dim, action_dim)
-            else:
-                self._start()
-            self.checkpoints.record_provenance(provenance.collect(self.step, config.matmul, self.matmul["path"],
-                                                                  config.device))
-            self.callbacks = Callbacks(TensorBoardLog([d.tensorboard_folder() for d in self.directories], self.step),
-                                       ProgressReport(sys.stderr.isatty() if progress is None else progress, log))
+            run_setup.set_up(self, resume, progress)
         except BaseException:
             self.close()
             raise
-
-    def _recorded_matmul_path(self):
-        """The matmul path the run being resumed started on (:func:`recorded_matmul_path`), if it can be kept."""
-        try:
-            recorded = self.directories[0].config_object().get("matmul_path")
-        except RunFileError:
-            return None
-        return recorded_matmul_path(recorded, self.config.matmul)
-
-    def _start(self) -> None:
-        """Step 0 of a new run: the first episodes and each seed's config.json."""
-        self.environments.start()
-        self.normalizer.update(self.environments.observations)
-        self.checkpoints.write_configs(self.config, {"matmul_path": self.matmul})
 
     # ----------------------------------------------------------------------------- the loop
     def train(self) -> list[dict[str, Any]]:
@@ -239,53 +194,21 @@ class Trainer:
 
     def results(self) -> list[dict[str, Any]]:
         """Each seed's folder, best evaluation (return and step), steps done and whether the run finished."""
-        return [seed_result(self.config, index, directory.path, self.evaluations[index], self.step, self.wall_seconds)
-                for index, directory in enumerate(self.directories)]
+        return [per_seed.seed_result(self.config, index, directory.path, self.evaluations[index], self.step,
+                                     self.wall_seconds) for index, directory in enumerate(self.directories)]
 
     # --------------------------------------------------------------------------- checkpoints
     def seed_state(self, index: int, segments: list[str]) -> dict[str, Any]:
-        """Everything seed ``index`` needs to resume exactly (with ``segments``, its replay so far), and to rebuild its
-        policy without an environment: the checkpoint's layout."""
-        config, environments = self.config, self.environments
-        agent = self.agent.seed_state(index)
-        noise = agent.pop("noise_generator")
-        return {
-            "config": config.for_seed(config.seeds[index]), "state_dim": environments.state_dim,
-            "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
-            "action_offset": torch.as_tensor(environments.action_offset), "step": self.step,
-            "wall_seconds": self.wall_seconds, **agent,
-            "normalizer": as_tensors(self.normalizer.state(index)),
-            "replay": {"total": self.replay.total, "capacity": self.replay.capacity, "segments": list(segments)},
-            "rng": {"numpy": self.rngs[index].bit_generator.state, "noise": noise},
-            "env": as_tensors(environments.snapshot(index)), "evaluations": self.evaluations[index],
-        }
+        """Seed ``index``'s checkpoint (:func:`~ilcsan.rl.seed_state.seed_state`)."""
+        return per_seed.seed_state(self, index, segments)
 
     def load_seed_states(self, states: list[dict[str, Any]]) -> None:
-        """Continue from the seeds' checkpoints (:meth:`seed_state`; the replay is the checkpoints' to rebuild)."""
-        self.agent.load_seed_states([{**state, "noise_generator": state["rng"]["noise"]} for state in states])
-        self.step, self.wall_seconds = states[0]["step"], float(states[0]["wall_seconds"])
-        for index, state in enumerate(states):
-            self.normalizer.load(index, as_arrays(state["normalizer"]))
-            self.rngs[index].bit_generator.state = state["rng"]["numpy"]
-            self.evaluations[index] = list(state["evaluations"])
-            if not self.environments.restore(index, as_arrays(state["env"]), self.step):
-                self.agent.end_episode(index)  # a new episode (for the exploration method too)
-                self.log(f"note: {self.config.task} cannot restore a running episode; seed {self.config.seeds[index]} "
-                         "resumes with a new episode (not bit-identical)")
+        """Continue from the seeds' checkpoints (:func:`~ilcsan.rl.seed_state.load_seed_states`)."""
+        per_seed.load_seed_states(self, states)
 
     def policy_state(self, index: int) -> dict[str, Any]:
-        """The deployable actor of seed ``index``: weights and persistent buffers, config, frozen normaliser, action
-        bounds."""
-        config, environments, normalizer = self.config, self.environments, self.normalizer
-        return {
-            "task": config.task, "contact_forces": config.task_contact_forces(), "algorithm": config.algorithm,
-            "actor_config": config.actor.to_dict(), "state_dim": environments.state_dim,
-            "action_dim": environments.action_dim, "action_scale": torch.as_tensor(environments.action_scale),
-            "action_offset": torch.as_tensor(environments.action_offset),
-            "actor": slice_state(self.agent.deployable_actor(), index, 1),
-            "obs_mean": torch.as_tensor(normalizer.mean[index]), "obs_std": torch.as_tensor(normalizer.std[index]),
-            "obs_clip": float(normalizer.clip), "step": self.step, "seed": config.seeds[index],
-        }
+        """Seed ``index``'s deployable policy (:func:`~ilcsan.rl.seed_state.policy_state`)."""
+        return per_seed.policy_state(self, index)
 
     def close(self) -> None:
         """Close the reporters, environments and locks, and give the process the settings the run changed back
@@ -340,21 +263,11 @@ def sample_minibatch(replay: ReplayBuffer, normalizer: RunningNormalizer, rngs: 
 
 
 def check_losses(critic_loss: float, actor_loss: float, step: int) -> None:
-    """Stop a run whose summed TD3 losses are non-finite or beyond :data:`LOSS_LIMIT`."""
+    """Stop a run whose summed losses are non-finite or beyond :data:`LOSS_LIMIT`."""
     if not (math.isfinite(critic_loss) and math.isfinite(actor_loss)) or abs(critic_loss) > LOSS_LIMIT:
         raise TrainingDiverged(
-            f"step {step}: the TD3 loss diverged (critic {critic_loss:.3g}, actor {actor_loss:.3g}); the run "
+            f"step {step}: the training loss diverged (critic {critic_loss:.3g}, actor {actor_loss:.3g}); the run "
             "stopped and kept its last checkpoint — try a smaller learning rate")
-
-
-def seed_result(config: RunConfig, index: int, directory: Path, rows: list[dict[str, float]], step: int,
-                wall_seconds: float) -> dict[str, Any]:
-    """What result.json says of seed ``index`` (and ``train`` returns): its best evaluation so far and progress."""
-    best = max(rows, key=lambda row: row["eval_return_mean"]) if rows else None
-    return {"seed": config.seeds[index], "directory": str(directory),
-            "best_return": best["eval_return_mean"] if best else None, "best_step": best["step"] if best else None,
-            "steps_done": step, "steps_total": config.steps, "finished": step >= config.steps,
-            "wall_seconds": round(wall_seconds, 3)}
 
 
 def train(config: RunConfig, out: Path, resume: bool = False, progress: bool | None = None,

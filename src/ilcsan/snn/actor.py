@@ -12,22 +12,22 @@ intra-layer module and decoder operations.
 Every tensor has a leading ensemble dimension K (seeds trained together): observations (K, B, N) →
 actions (K, B, M).
 
-With a normalisation (``normalization="care-bn"``: :mod:`ilcsan.snn.normalization`, the layer its declaration in
-:mod:`ilcsan.methods` names) each synaptic layer's current W^l S + b^l is normalised before its neurons (on the output
-layer before the intra-layer current is added), with the running statistics by default or, for the actor's loss, the
-batch's own (``norm_statistics`` of :meth:`SpikingActor.run`).
+The actor knows no training method. What a method changes in it is given as objects: at build time the module class
+of a normalisation (``normalization``, CaRe-BN's :class:`~ilcsan.snn.normalization.CareBatchNorm`; the class a
+normalisation's declaration names, resolved by :func:`ilcsan.actors.build_actor`), with which each synaptic layer's
+current W^l S + b^l is normalised before its neurons (on the output layer before the intra-layer current is added);
+per pass a :class:`~ilcsan.snn.output.PassOptions`: perturbations of the neurons
+(:class:`~ilcsan.snn.noise.NeuronNoise`), which statistics the normalisation uses, where to record them, and
+whether to return the pre-tanh output too.
 """
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 from collections.abc import Sequence
 
 import torch
 from torch import nn
 
-from .. import methods
 from ..compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ..config import ENGINES, INTRA_MASKS, ActorConfig
 from ..errors import UserError
@@ -37,17 +37,11 @@ from .ensemble import EnsembleLinear, EnsembleMLP, seed_generators
 from .intra import IntraLayerConnections
 from .neurons import neuron_model
 from .noise import NeuronNoise
-from .normalization import NormStatistics, batch_statistics, pool_statistics
-from .output import ActorOutput
+from .normalization import LayerNormalizations, NormStatistics, checked_statistics
+from .output import PLAIN_PASS, ActorOutput, PassOptions
 from .reference import run_reference
 
 ACTOR_SALT = 1
-
-
-NormStatisticsChoice = str | Sequence[NormStatistics]
-"""Which statistics a normalising actor's layers use (``norm_statistics``): "running" (the default), "batch" (each
-layer its batch's own, pooled over the batch and the T steps), or a sequence of :class:`NormStatistics` for the first
-layers, the layers after them using their batch's own ("batch" is the empty sequence)."""
 
 
 def checked_engine(engine: str) -> str:
@@ -80,11 +74,12 @@ class _Actor(nn.Module):
 
 
 class SpikingActor(_Actor):
-    """The spiking actor network of Fig. 2 with every ablation as a switch."""
+    """The spiking actor network of Fig. 2 with every ablation as a switch; ``normalization``, the module class that
+    normalises one synaptic layer's current (None: none; the module docstring)."""
 
     def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
                  action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast",
-                 matmul: MatmulPath = DEFAULT_MATMUL):
+                 matmul: MatmulPath = DEFAULT_MATMUL, normalization: type[nn.Module] | None = None):
         super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
         ensemble = len(seeds)
         self.encoder = Encoder(config.encoder, ensemble, state_dim, config.population_in, config.timesteps,
@@ -99,8 +94,8 @@ class SpikingActor(_Actor):
         self.decoder = PopulationDecoder(ensemble, action_dim, config.population_out, config.decoder,
                                          config.alpha_v_li)
         self.neuron = neuron_model(config)
-        norm = methods.declared("normalization", config.normalization).actor_layer_class()
-        self.norms = nn.ModuleList(norm(ensemble, width, config.v_th) for width in sizes[1:]) if norm else None
+        self.norms = (LayerNormalizations(normalization, ensemble, sizes[1:], config.v_th)
+                      if normalization is not None else None)
         self.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def reset_parameters(self, generators: Sequence[torch.Generator]) -> None:
@@ -113,33 +108,8 @@ class SpikingActor(_Actor):
         if self.intra is not None:
             self.intra.reset_parameters(generators)
         self.decoder.reset_parameters(generators)
-        for norm in self.norms or ():
-            norm.reset_parameters()
-
-    def checked_norm_statistics(self, choice: NormStatisticsChoice) -> str | tuple[NormStatistics, ...]:
-        """``choice`` (:data:`NormStatisticsChoice`) as "running" or a tuple of given statistics ("batch": ()),
-        or a :class:`UserError` when it is not one or this actor does not normalise."""
-        if isinstance(choice, str) and choice not in ("running", "batch"):
-            raise UserError(f"norm_statistics {choice!r} is not one of: running, batch, or a sequence of statistics")
-        if self.norms is None:
-            if choice != "running":
-                raise UserError("this actor does not normalise its currents (--normalization none): it has no "
-                                "batch statistics to use")
-            return "running"
-        if choice == "running":
-            return choice
-        given = () if choice == "batch" else tuple(choice)
-        if len(given) > len(self.layers):
-            raise UserError(f"{len(given)} layers' statistics given, the actor has {len(self.layers)} layers")
-        return given
-
-    def norm_statistics_of(self, index: int, currents: torch.Tensor,
-                           choice: str | tuple[NormStatistics, ...]) -> NormStatistics:
-        """The statistics synaptic layer ``index`` normalises its ``currents`` with under a checked ``choice``
-        (:meth:`checked_norm_statistics`): the running ones, the given ones, or the batch's own."""
-        if choice == "running":
-            return self.norms[index].running()
-        return choice[index] if index < len(choice) else batch_statistics(currents)
+        if self.norms is not None:
+            self.norms.reset_parameters()
 
     def layer_spikes(self, currents: torch.Tensor, output_layer: bool, transmission: torch.Tensor | None = None,
                      membranes: list[torch.Tensor] | None = None) -> torch.Tensor:
@@ -175,29 +145,30 @@ class SpikingActor(_Actor):
         return torch.stack(spikes, dim=1)
 
     def layer_currents(self, index: int, values: torch.Tensor, constant: bool,
-                       norm_statistics: str | tuple[NormStatistics, ...]) -> tuple[torch.Tensor, NormStatistics | None]:
+                       statistics: str | tuple[NormStatistics, ...]) -> tuple[torch.Tensor, NormStatistics | None]:
         """Synaptic layer ``index``'s currents (K, T, B, D) from its input ``values`` — spikes (K, T, B, D), or an
-        analog input (K, B, D) the same at every step when ``constant`` — normalised under a checked
-        ``norm_statistics`` choice (CaRe-BN), with the statistics used (None without normalisation)."""
+        analog input (K, B, D) the same at every step when ``constant`` — normalised under a checked ``statistics``
+        choice (:func:`~ilcsan.snn.normalization.checked_statistics`), with the statistics used (None without
+        normalisation)."""
         currents = self.layers[index](values)
         used = None
         if self.norms is not None:  # an analog input's (K, B, D) currents: the same statistics as their T copies
-            used = self.norm_statistics_of(index, currents, norm_statistics)
+            used = self.norms.statistics_of(index, currents, statistics)
             currents = self.norms[index](currents, used)
         if constant:
             currents = currents.unsqueeze(1).expand(-1, self.config.timesteps, *currents.shape[1:])
         return currents, used
 
     def _run_layer_major(self, state: torch.Tensor, noise: NeuronNoise | None, membranes: bool,
-                         norm_statistics: str | tuple[NormStatistics, ...]) -> ActorOutput:
+                         statistics: str | tuple[NormStatistics, ...]) -> ActorOutput:
         encoded = self.encoder(state)
         values, constant = encoded.values, encoded.constant
         inputs, recorded, used = [], [] if membranes else None, []
         last = len(self.layers) - 1
         for index in range(len(self.layers)):
             inputs.append(values)
-            currents, statistics = self.layer_currents(index, values, constant, norm_statistics)
-            used.append(statistics)
+            currents, layer_statistics = self.layer_currents(index, values, constant, statistics)
+            used.append(layer_statistics)
             if noise is not None:
                 currents = currents + noise.charge[index]
             values = self.layer_spikes(currents, index == last, None if noise is None else noise.transmission[index],
@@ -208,75 +179,27 @@ class SpikingActor(_Actor):
                            torch.stack(recorded, dim=1) if membranes else None,
                            tuple(used) if self.norms is not None else None)
 
-    def run(self, state: torch.Tensor, engine: str | None = None, noise: NeuronNoise | None = None,
-            membranes: bool = False, norm_statistics: NormStatisticsChoice = "running") -> ActorOutput:
-        """Normalised state (K, B, N) → :class:`ActorOutput`; ``engine`` overrides :attr:`engine` for analysis;
-        ``noise`` perturbs the neurons (NoisySAN exploration, training only; added after the normalisation);
-        ``membranes`` records the output layer's potentials (:attr:`ActorOutput.membranes`, diagnostics);
-        ``norm_statistics`` (CaRe-BN only, :data:`NormStatisticsChoice`) says which statistics normalise each layer,
-        returned in :attr:`ActorOutput.norm_statistics`."""
-        choice = self.checked_norm_statistics(norm_statistics)
+    def run(self, state: torch.Tensor, engine: str | None = None, *, options: PassOptions = PLAIN_PASS,
+            membranes: bool = False) -> ActorOutput:
+        """Normalised state (K, B, N) → :class:`ActorOutput` under ``options`` (:class:`PassOptions`: the neurons'
+        perturbation, the normalisation's statistics, returned in :attr:`ActorOutput.norm_statistics`, and appended to
+        ``options.record`` if given); ``engine`` overrides :attr:`engine` for analysis; ``membranes`` records the
+        output layer's potentials (:attr:`ActorOutput.membranes`, diagnostics)."""
+        statistics = checked_statistics(self.norms, options.statistics)
         if checked_engine(engine or self.engine) == "reference":
-            return run_reference(self, state, noise, membranes, choice)
-        return self._run_layer_major(state, noise, membranes, choice)
+            output = run_reference(self, state, options.noise, membranes, statistics)
+        else:
+            output = self._run_layer_major(state, options.noise, membranes, statistics)
+        if options.record is not None:
+            options.record.append(output.norm_statistics)
+        return output
 
-    def forward(self, state: torch.Tensor, noise: NeuronNoise | None = None, with_preaction: bool = False,
-                norm_statistics: NormStatisticsChoice = "running", used_statistics: list | None = None,
-                ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
-        """Normalised state (K, B, N) → action (K, B, M); deterministic unless ``noise`` is given;
-        ``with_preaction`` also returns the pre-tanh output O (K, B, M); ``norm_statistics`` as for :meth:`run`;
-        a ``used_statistics`` list receives the statistics each layer normalised with
-        (:attr:`ActorOutput.norm_statistics`: how the actor's loss hands its batch statistics to the Kalman update,
-        since a functional call of the module reaches its forward only)."""
-        output = self.run(state, noise=noise, norm_statistics=norm_statistics)
-        if used_statistics is not None:
-            used_statistics.append(output.norm_statistics)
-        return (output.action, output.readout) if with_preaction else output.action
-
-    # ------------------------------------------------------------------ CaRe-BN's running statistics
-    def update_running_statistics_(self, statistics: Sequence[NormStatistics], samples: int) -> None:
-        """Move each layer's running statistics toward the batch statistics of a pass over ``samples`` states
-        (:attr:`ActorOutput.norm_statistics` of ``norm_statistics="batch"``) by CaRe-BN's Kalman-style gain
-        (:func:`~ilcsan.snn.normalization.kalman_update`), in place."""
-        for norm, batch in zip(self._norms(), statistics, strict=True):
-            norm.kalman_update_(batch, samples)
-
-    @torch.no_grad()
-    def recalibrated_statistics(self, batches: Sequence[torch.Tensor]) -> tuple[NormStatistics, ...]:
-        """The exact statistics of each layer's currents pooled over all ``batches`` of normalised states
-        (K, B_i, N), layer by layer: layer l's currents over every batch are computed with layers 1..l−1 normalised
-        by their recalibrated statistics, so it takes one pass over the batches per layer, and the pass for layer l
-        stops at layer l's currents (the later layers, the intra-layer loop and the decoder do not run: 1 + 2 + … + L
-        layer products instead of L²). The hidden layers' spikes are the fast engine's, equal to the reference
-        engine's. The actor is unchanged (:meth:`set_running_statistics_` installs the result)."""
-        self._norms()  # a UserError for an actor without normalisation
-        found: list[NormStatistics] = []
-        for index in range(len(self.layers)):
-            parts = []
-            for batch in batches:
-                encoded = self.encoder(batch)
-                values, constant = encoded.values, encoded.constant
-                for before in range(index):
-                    currents, _ = self.layer_currents(before, values, constant, tuple(found))
-                    values, constant = self.layer_spikes(currents, output_layer=False), False
-                parts.append(batch_statistics(self.layers[index](values)))
-            found.append(pool_statistics(parts, [batch.shape[1] for batch in batches]))
-        return tuple(found)
-
-    def set_running_statistics_(self, statistics: Sequence[NormStatistics]) -> None:
-        """Replace each layer's running μ̂, σ̂² (P_μ, P_σ² are kept), in place."""
-        for norm, layer_statistics in zip(self._norms(), statistics, strict=True):
-            norm.set_running_(layer_statistics)
-
-    def running_statistics(self) -> list[torch.Tensor]:
-        """The running μ̂, σ̂² buffers of every layer in order: the tensors besides the parameters that the target
-        actor's Polyak average must follow (its P_μ, P_σ² are never read)."""
-        return [tensor for norm in self._norms() for tensor in norm.running()]
-
-    def _norms(self) -> nn.ModuleList:
-        if self.norms is None:
-            raise UserError("this actor does not normalise its currents (--normalization none)")
-        return self.norms
+    def forward(self, state: torch.Tensor,
+                options: PassOptions = PLAIN_PASS) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Normalised state (K, B, N) → action (K, B, M), deterministic unless ``options.noise`` is given; with
+        ``options.preaction`` (action, pre-tanh output O (K, B, M)); the rest of ``options`` as for :meth:`run`."""
+        output = self.run(state, options=options)
+        return (output.action, output.readout) if options.preaction else output.action
 
     def noise_widths(self) -> tuple[int, ...]:
         """The widths D_l of the synaptic layers' outputs, whose neurons NoisySAN perturbs."""
@@ -296,39 +219,15 @@ class DeepActor(_Actor):
         self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim), matmul)
         self.mlp.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
-    def run(self, state: torch.Tensor, engine: str | None = None, membranes: bool = False) -> ActorOutput:
+    def run(self, state: torch.Tensor, engine: str | None = None, *, options: PassOptions = PLAIN_PASS,
+            membranes: bool = False) -> ActorOutput:
         checked_engine(engine or self.engine)
         output = self.mlp(state)
         return ActorOutput(self.squash(output), (state,), None, None, output)
 
     def forward(self, state: torch.Tensor,
-                with_preaction: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+                options: PassOptions = PLAIN_PASS) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """As :meth:`SpikingActor.forward`; DAN has no neurons to perturb nor currents to normalise (the methods that
+        would ask refuse a deep actor: :func:`ilcsan.methods.check_run`), so only ``options.preaction`` applies."""
         output = self.mlp(state)
-        return (self.squash(output), output) if with_preaction else self.squash(output)
-
-
-def folded_actor(actor: SpikingActor) -> SpikingActor:
-    """An equivalent copy of a CaRe-BN actor without normalisation: each layer's W, b replaced by the fold of its
-    running statistics, γ and β (:func:`~ilcsan.snn.normalization.fold_into_linear`), its config's
-    ``normalization`` "none". Acting with running statistics, it gives the same actions up to float rounding, with
-    plain synaptic layers (additions only on spikes). ``actor`` is not changed."""
-    norms = actor._norms()
-    folded = copy.deepcopy(actor)
-    with torch.no_grad():
-        for layer, norm in zip(folded.layers, norms, strict=True):
-            weight, bias = norm.folded(layer.weight, layer.bias)
-            layer.weight.copy_(weight)
-            layer.bias.copy_(bias)
-    folded.norms = None
-    folded.config = dataclasses.replace(actor.config, normalization="none")
-    return folded
-
-
-def build_actor(config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
-                action_offset: Sequence[float] | None = None, seeds: Sequence[int] = (0,),
-                engine: str = "fast", matmul: MatmulPath = DEFAULT_MATMUL) -> SpikingActor | DeepActor:
-    """The actor ``config`` describes, for K = len(seeds) seeds, each initialised from its seed; ``engine``
-    ('fast' or 'reference', :data:`ilcsan.config.ENGINES`) is its forward pass, ``matmul`` where its products run."""
-    action_offset = [0.0] * action_dim if action_offset is None else action_offset
-    cls = DeepActor if config.network == "deep" else SpikingActor
-    return cls(config, state_dim, action_dim, action_scale, action_offset, seeds, engine, matmul)
+        return (self.squash(output), output) if options.preaction else self.squash(output)

@@ -24,7 +24,10 @@ With fixed statistics the normalisation is an affine map X̂ = s X + h (:func:`n
 Every function here is pure (new tensors out, nothing changed in place) but :func:`kalman_update_`, which writes
 :func:`kalman_update`'s result into the tensors it is given (a layer's buffers, or the training update's views of
 them); :class:`CareBatchNorm` holds one layer's γ, β (parameters) and μ̂, σ̂², P_μ, P_σ² (persistent buffers, ensemble
-dimension K first) and applies them.
+dimension K first) and applies them. :class:`LayerNormalizations` is what an actor holds: one such module per
+synaptic layer, built from the class a normalisation's declaration names, with the choice of statistics of each pass
+(:data:`StatisticsChoice`) and the export fold (:meth:`LayerNormalizations.export_fold`);
+:func:`recalibrated_statistics` computes CaRe-BN's exact statistics over replayed states.
 """
 
 from __future__ import annotations
@@ -51,6 +54,12 @@ class NormStatistics(NamedTuple):
 
     mean: torch.Tensor
     var: torch.Tensor
+
+
+StatisticsChoice = str | Sequence[NormStatistics]
+"""Which statistics a normalising actor's layers use in one pass: "running" (the default), "batch" (each layer its
+batch's own, pooled over the batch and the T steps), or a sequence of :class:`NormStatistics` for the first layers,
+the layers after them using their batch's own ("batch" is the empty sequence)."""
 
 
 class RunningStatistics(NamedTuple):
@@ -201,20 +210,106 @@ class CareBatchNorm(nn.Module):
                          self.eps)
 
     @torch.no_grad()
-    def kalman_update_(self, batch: NormStatistics, samples: int) -> None:
-        """:func:`kalman_update` of the buffers toward ``batch`` (statistics of ``samples`` states), in place."""
-        kalman_update_(self.running_state(), batch, samples, self.momentum)
-
-    @torch.no_grad()
     def set_running_(self, statistics: NormStatistics) -> None:
         """Replace μ̂, σ̂² (recalibration); P_μ, P_σ² are kept, as in the authors' code."""
         self.running_mean.copy_(statistics.mean)
         self.running_var.copy_(statistics.var)
 
-    def folded(self, weight: torch.Tensor, bias: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
-        """:func:`fold_into_linear` with this layer's running statistics, γ and β."""
-        return fold_into_linear(weight, bias, self.running(), self.gamma, self.beta, self.eps)
+    def folded_linear(self, tensors: dict[str, torch.Tensor], weight: torch.Tensor,
+                      bias: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:func:`fold_into_linear` of the layer ``weight``, ``bias`` with this module's exported ``tensors`` (its
+        parameters and buffers by their own names, as an export reads them): what the export fold of
+        :class:`LayerNormalizations` does per layer."""
+        statistics = NormStatistics(tensors["running_mean"], tensors["running_var"])
+        return fold_into_linear(weight, bias, statistics, tensors["gamma"], tensors["beta"], self.eps)
 
     def extra_repr(self) -> str:
         k, d = self.gamma.shape
         return f"ensemble={k}, features={d}, eps={self.eps}, momentum={self.momentum}"
+
+
+class LayerNormalizations(nn.ModuleList):
+    """The normalisation of each synaptic layer of an actor: ``layer(ensemble, width, threshold)`` per layer width,
+    ``layer`` the module class a normalisation's declaration names (:class:`CareBatchNorm` for CaRe-BN), whose
+    instances normalise with the statistics they are given (``forward(currents, statistics)``), hold running ones
+    (``running()``, ``set_running_(statistics)``) and fold into their layer (``folded_linear``). ``normalizes`` is the
+    name of the actor's list of synaptic layers, whose layer l the module l normalises (for the export fold)."""
+
+    def __init__(self, layer: type[nn.Module], ensemble: int, widths: Sequence[int], threshold: float,
+                 normalizes: str = "layers"):
+        super().__init__(layer(ensemble, width, threshold) for width in widths)
+        self.normalizes = normalizes
+
+    def reset_parameters(self) -> None:
+        for norm in self:
+            norm.reset_parameters()
+
+    def statistics_of(self, index: int, currents: torch.Tensor,
+                      choice: str | tuple[NormStatistics, ...]) -> NormStatistics:
+        """The statistics layer ``index`` normalises its ``currents`` with under a checked ``choice``
+        (:func:`checked_statistics`): the running ones, the given ones, or the batch's own."""
+        if choice == "running":
+            return self[index].running()
+        return choice[index] if index < len(choice) else batch_statistics(currents)
+
+    def set_running_(self, statistics: Sequence[NormStatistics]) -> None:
+        """Replace each layer's running μ̂, σ̂² (P_μ, P_σ² are kept), in place."""
+        for norm, layer_statistics in zip(self, statistics, strict=True):
+            norm.set_running_(layer_statistics)
+
+    def export_fold(self, state: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+        """The exported ``state`` (names → tensors of one seed) with each normalisation ``<prefix>.<l>`` folded into
+        the synaptic layer ``<normalizes>.<l>`` whose current it normalises (W' = s W, b' = s (b − μ̂) + β,
+        :func:`fold_into_linear`) and its tensors (γ, β and the buffers) removed: the export of an actor with
+        normalisation is an actor without, additions-only (:func:`ilcsan.deploy.state.fold_buffers`)."""
+        for index, norm in enumerate(self):
+            own = f"{prefix}.{index}."
+            tensors = {name[len(own):]: tensor for name, tensor in state.items() if name.startswith(own)}
+            layer = f"{self.normalizes}.{index}"
+            weight, bias = norm.folded_linear(tensors, state[f"{layer}.weight"], state.get(f"{layer}.bias"))
+            kept = {name: tensor for name, tensor in state.items() if not name.startswith(own)}
+            state = {**kept, f"{layer}.weight": weight, f"{layer}.bias": bias}
+        return state
+
+
+def checked_statistics(norms: LayerNormalizations | None, choice: StatisticsChoice) -> str | tuple[NormStatistics, ...]:
+    """``choice`` (:data:`StatisticsChoice`) as "running" or a tuple of given statistics ("batch": ()), or a
+    :class:`UserError` when it is not one, or the actor (its ``norms``, None without normalisation) cannot use it."""
+    if isinstance(choice, str) and choice not in ("running", "batch"):
+        raise UserError(f"statistics {choice!r} is not one of: running, batch, or a sequence of statistics")
+    if norms is None:
+        if choice != "running":
+            raise UserError("this actor does not normalise its currents (--normalization none): it has no "
+                            "batch statistics to use")
+        return "running"
+    if choice == "running":
+        return choice
+    given = () if choice == "batch" else tuple(choice)
+    if len(given) > len(norms):
+        raise UserError(f"{len(given)} layers' statistics given, the actor has {len(norms)} layers")
+    return given
+
+
+@torch.no_grad()
+def recalibrated_statistics(actor: nn.Module, batches: Sequence[torch.Tensor]) -> tuple[NormStatistics, ...]:
+    """The exact statistics of each layer's currents in a normalising spiking ``actor``
+    (:class:`~ilcsan.snn.actor.SpikingActor`) pooled over all ``batches`` of normalised states (K, B_i, N), layer by
+    layer: layer l's currents over every batch are computed with layers 1..l−1 normalised by their recalibrated
+    statistics, so it takes one pass over the batches per layer, and the pass for layer l stops at layer l's currents
+    (the later layers, the intra-layer loop and the decoder do not run: 1 + 2 + … + L layer products instead of L²).
+    The hidden layers' spikes are the fast engine's, equal to the reference engine's. The actor is unchanged
+    (:meth:`LayerNormalizations.set_running_` installs the result)."""
+    if actor.norms is None:
+        raise UserError("this actor does not normalise its currents (--normalization none)")
+    found: list[NormStatistics] = []
+    for index in range(len(actor.layers)):
+        parts = []
+        for batch in batches:
+            encoded = actor.encoder(batch)
+            values, constant = encoded.values, encoded.constant
+            for before in range(index):
+                currents, _ = actor.layer_currents(before, values, constant, tuple(found))
+                values, constant = actor.layer_spikes(currents, output_layer=False), False
+            parts.append(batch_statistics(actor.layers[index](values)))
+        found.append(pool_statistics(parts, [batch.shape[1] for batch in batches]))
+    return tuple(found)

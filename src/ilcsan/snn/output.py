@@ -6,7 +6,30 @@ from typing import NamedTuple
 
 import torch
 
-from .normalization import NormStatistics
+from .noise import NeuronNoise
+from .normalization import NormStatistics, StatisticsChoice
+
+
+class PassOptions(NamedTuple):
+    """What a training method asks of one forward pass of an actor, beyond the states, in one object: the actor knows
+    the kinds of request, not the methods that make them.
+
+    ``noise``: perturbations of the neurons (:class:`~ilcsan.snn.noise.NeuronNoise`, NoisySAN's exploration; None:
+    none), added after the normalisation. ``statistics``: which statistics a normalising actor's layers use
+    (:data:`~ilcsan.snn.normalization.StatisticsChoice`: the running ones by default, CaRe-BN's actor loss the
+    batch's own). ``record``: a list that receives the statistics each layer was normalised with
+    (:attr:`ActorOutput.norm_statistics`): how the actor's loss hands its batch statistics to the update that follows
+    it, since a functional call of the module reaches its ``forward`` only. ``preaction``: ``forward`` also returns the
+    pre-tanh output O (K, B, M) (a loss term's input; SAC's mean and log-std)."""
+
+    noise: NeuronNoise | None = None
+    statistics: StatisticsChoice = "running"
+    record: list | None = None
+    preaction: bool = False
+
+
+PLAIN_PASS = PassOptions()
+"""A pass as the actor acts: no noise, running statistics, nothing recorded, the action alone."""
 
 
 class ActorOutput(NamedTuple):

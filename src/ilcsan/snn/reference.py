@@ -41,21 +41,20 @@ class _Pass(NamedTuple):
 
 
 def run_reference(actor, state: torch.Tensor, noise: NeuronNoise | None = None, membranes: bool = False,
-                  norm_statistics: str | tuple[NormStatistics, ...] = "running") -> ActorOutput:
+                  statistics: str | tuple[NormStatistics, ...] = "running") -> ActorOutput:
     """Normalised state (K, B, N) → :class:`ActorOutput` by Algorithm 1's time loop; ``noise`` adds NoisySAN's
     perturbations at each step where :class:`~ilcsan.snn.noise.NeuronNoise` says; ``membranes`` records the
-    output layer's potentials; ``norm_statistics`` (checked by the actor: "running" or the given statistics of
+    output layer's potentials; ``statistics`` (checked by the actor: "running" or the given statistics of
     the first layers, the others their batch's own) as in the module docstring."""
     encoded = actor.encoder(state)
-    statistics = None
+    used = None
     if actor.norms is not None:
-        statistics = ([norm.running() for norm in actor.norms] if norm_statistics == "running"
-                      else list(norm_statistics))
-        for index in range(len(statistics), len(actor.layers)):
-            placeholders = statistics + [norm.running() for norm in actor.norms[index:]]
+        used = [norm.running() for norm in actor.norms] if statistics == "running" else list(statistics)
+        for index in range(len(used), len(actor.layers)):
+            placeholders = used + [norm.running() for norm in list(actor.norms)[index:]]
             currents = _algorithm_1(actor, encoded, noise, False, placeholders).currents[index]
-            statistics.append(batch_statistics(torch.stack(currents, dim=1)))
-    return _algorithm_1(actor, encoded, noise, membranes, statistics).output
+            used.append(batch_statistics(torch.stack(currents, dim=1)))
+    return _algorithm_1(actor, encoded, noise, membranes, used).output
 
 
 def _algorithm_1(actor, encoded, noise: NeuronNoise | None, membranes: bool,

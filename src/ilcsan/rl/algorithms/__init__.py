@@ -6,12 +6,14 @@ from __future__ import annotations
 
 from ... import methods
 from ...config import RunConfig
+from ..agent_settings import ComputeSettings, TaskSpace
 from .base import OffPolicyAlgorithm
 from .critic import Critics
 from .sac import SAC
 from .td3 import DDPG, TD3
 
-__all__ = ["DDPG", "SAC", "TD3", "Critics", "OffPolicyAlgorithm", "algorithm_class", "build_algorithm"]
+__all__ = ["DDPG", "SAC", "TD3", "ComputeSettings", "Critics", "OffPolicyAlgorithm", "TaskSpace", "algorithm_class",
+           "build_algorithm"]
 
 
 def algorithm_class(name: str) -> type[OffPolicyAlgorithm]:
@@ -22,7 +24,6 @@ def algorithm_class(name: str) -> type[OffPolicyAlgorithm]:
 def build_algorithm(config: RunConfig, state_dim: int, action_dim: int, action_scale, action_offset,
                     episode_steps: int | None, matmul) -> OffPolicyAlgorithm:
     """The run's algorithm for its seeds, on its device, compiled or not as the run says."""
-    return algorithm_class(config.algorithm)(
-        config.actor, config.td3, state_dim, action_dim, action_scale, action_offset, config.seeds, config.device,
-        compile=config.compiles(), engine=config.engine, task=config.task, episode_steps=episode_steps,
-        matmul=matmul)
+    task = TaskSpace(state_dim, action_dim, action_scale, action_offset, config.task, episode_steps)
+    compute = ComputeSettings(config.device, config.compiles(), config.engine, matmul)
+    return algorithm_class(config.algorithm)(config.actor, config.td3, task, config.seeds, compute)

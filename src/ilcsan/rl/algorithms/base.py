@@ -12,12 +12,12 @@ owns its networks, their Adam states, its random streams and its part of a check
   seeds' own generators, and passed in with the minibatch.
 - The actor's persistent buffers (a normalisation's running statistics) are state the update reads and writes like
   its parameters: every pass of the actor or target actor inside an update takes them from the tensors passed in
-  (:meth:`OffPolicyAlgorithm.stateful`), and the actor's normalisation method (:class:`~ilcsan.rl.methods.
-  Normalization`, chosen by ``actor.normalization``) writes them in place after the actor's step. The paper's,
-  ``none``, has no buffers and does nothing.
+  (:class:`~ilcsan.rl.algorithms.update_tensors.UpdateTensors`), and the actor's normalisation method
+  (:class:`~ilcsan.rl.methods.Normalization`, chosen by ``actor.normalization``) writes them in place after the
+  actor's step. The paper's, ``none``, has no buffers and does nothing.
 - The loss terms (:class:`~ilcsan.rl.methods.LossTerm`, each on when its weight is above 0; none in the paper) add to
   every algorithm's actor loss a term of the pre-tanh output of the pass it evaluates
-  (:meth:`OffPolicyAlgorithm.with_loss_terms`).
+  (:meth:`~ilcsan.rl.methods.actor_methods.ActorMethods.with_loss_terms`).
 - The actor reads ``readouts`` values per action dimension from its output populations: 1 for the deterministic
   actors of TD3 and DDPG (a = offset + scale · tanh(O)), 2 for SAC's Gaussian (a mean and a log-std). The
   deterministic action — for evaluation, diagnostics and deployment — is always the first readout squashed, so the
@@ -27,7 +27,7 @@ owns its networks, their Adam states, its random streams and its part of a check
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -35,23 +35,25 @@ import torch
 from torch import nn
 
 from ... import methods
-from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
-from ...compute.programs import CompiledPerShape, as_function, prepare_compilation
+from ...actors import build_actor
+from ...compute.programs import CompiledPerShape, as_function, prepare_compilation, value_and_grads
 from ...config import ActorConfig, RunConfig, TrainingProtocol
 from ...runs.checkpoint import load_state, module_state, slice_state
-from ...snn.actor import build_actor
-from ..adam import Adam
-from ..methods import Method, MethodContext, loss_term_methods, normalization_method
+from ..adam import Adam, adam_
+from ..agent_settings import EAGER_ON_CPU, ComputeSettings, TaskSpace
+from ..methods import Method, MethodContext
+from ..methods.actor_methods import ActorMethods
 from .critic import Critics
+from .update_tensors import UpdateTensors
 
 NOISE_SALT = 3
 """Offset of the update's noise generators (TD3's target smoothing, SAC's reparameterisation) from a seed."""
 
 
 class OffPolicyAlgorithm:
-    """K agents of one off-policy algorithm; ``engine`` is the actor's forward pass ('fast' or 'reference');
-    ``compile`` runs each update as one compiled program and compiles a spiking actor's acting pass; ``matmul`` is
-    where every network's products run. Subclasses define :meth:`explore` and :meth:`update`."""
+    """K agents of one off-policy algorithm (one per seed) for the actor ``actor_config`` describes, trained with the
+    settings ``td3``, on ``task`` (:class:`~ilcsan.rl.agent_settings.TaskSpace`), computing as ``compute`` says
+    (:class:`~ilcsan.rl.agent_settings.ComputeSettings`). Subclasses define :meth:`explore` and :meth:`update`."""
 
     critics = 2
     """Q-networks per seed."""
@@ -71,43 +73,33 @@ class OffPolicyAlgorithm:
         """Critic updates per actor update."""
         return 1
 
-    def __init__(self, actor_config: ActorConfig, td3: TrainingProtocol, state_dim: int, action_dim: int,
-                 action_scale: Sequence[float], action_offset: Sequence[float], seeds: Sequence[int],
-                 device: str | torch.device = "cpu", compile: bool = False, engine: str = "fast", task: str = "",
-                 episode_steps: int | None = None, matmul: MatmulPath = DEFAULT_MATMUL):
-        self.config, self.td3, self.seeds = actor_config, td3, list(seeds)
-        self.device, self.compiled = torch.device(device), compile
-        self.task, self.episode_steps, self.engine, self.matmul = task, episode_steps, engine, matmul
-        self.state_dim, self.action_dim = state_dim, action_dim
-        self.action_scale, self.action_offset = np.asarray(action_scale), np.asarray(action_offset)
+    def __init__(self, actor_config: ActorConfig, td3: TrainingProtocol, task: TaskSpace, seeds: Sequence[int],
+                 compute: ComputeSettings = EAGER_ON_CPU):
+        self.config, self.td3, self.task, self.compute, self.seeds = actor_config, td3, task, compute, list(seeds)
+        self.device, self.compiled = compute.device, compute.compile
+        self.state_dim, self.action_dim = task.state_dim, task.action_dim
+        self.action_scale, self.action_offset = task.action_scale, task.action_offset
         self.actor = self._build_actor(self.readouts)
-        self.critic = Critics(state_dim, action_dim, td3.critic_hidden, self.seeds, self.critics,
-                              matmul).to(self.device)
+        self.critic = Critics(task.state_dim, task.action_dim, td3.critic_hidden, self.seeds, self.critics,
+                              compute.matmul).to(self.device)
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
-        if compile:
+        self.critic_names = [name for name, _ in self.critic.named_parameters()]
+        if compute.compile:
             prepare_compilation()
         self.actor_adam = Adam(self.actor, actor_config.learning_rate)
         self.critic_adam = Adam(self.critic, td3.critic_lr)
         # compile: the acting forward pass too (a spiking actor's many small neuron-update ops fuse into a few loops;
         # for DAN the program saves the eager per-op dispatch of a batch-1 action)
-        self.actor_fn = CompiledPerShape(self.actor) if compile else self.actor
+        self.actor_fn = CompiledPerShape(self.actor) if compute.compile else self.actor
         self.noise_generators = [torch.Generator(device=self.device).manual_seed(seed * 1_000_003 + NOISE_SALT)
                                  for seed in self.seeds]
         self.scale = torch.as_tensor(self.action_scale, dtype=torch.float32, device=self.device)
         self.offset = torch.as_tensor(self.action_offset, dtype=torch.float32, device=self.device)
         self.updates = 0
-        self._critic_target_views: list[torch.Tensor] | None = None
-        self._buffer_views: dict[int, list[torch.Tensor]] = {}
-        self._state_names: dict[int, list[str]] = {}
-        self.normalization = normalization_method(actor_config.normalization)(self.method_context())
-        self.loss_terms = [method(self.method_context()) for method in loss_term_methods(td3)]
-        self.actor_buffer_names = list(persistent_buffers(self.actor))
-        self.followed_buffers = self.normalization.followed_buffers(self.actor_buffer_names)
-        """The actor's buffers a Polyak-averaged target actor follows (by name; the target's are named alike)."""
-        cancelled = set(self.normalization.cancelled_parameters(self.actor_adam.names))
-        self.cancelled_parameters = [index for index, name in enumerate(self.actor_adam.names) if name in cancelled]
-        """Positions of the actor's parameters whose gradient the update sets to exactly zero."""
+        self.update_tensors = UpdateTensors()
+        self.actor_methods = ActorMethods(self.method_context(), self.actor_adam.names)
+        """The actor's normalisation and loss terms, as the update calls them."""
 
     def _build_actor(self, readouts: int) -> nn.Module:
         """The actor ensemble with ``readouts`` output populations per action dimension; the squashing bounds of
@@ -116,17 +108,15 @@ class OffPolicyAlgorithm:
         scale = np.concatenate([self.action_scale, np.ones(padding * self.action_dim)])
         offset = np.concatenate([self.action_offset, np.zeros(padding * self.action_dim)])
         return build_actor(self.config, self.state_dim, readouts * self.action_dim, scale, offset, self.seeds,
-                           engine=self.engine, matmul=self.matmul).to(self.device)
+                           engine=self.compute.engine, matmul=self.compute.matmul).to(self.device)
 
     def method_context(self) -> MethodContext:
         """What a training method is built from: this agent's actor, settings, task and seeds."""
-        return MethodContext(self.actor, self.config, self.td3, self.task, self.episode_steps, tuple(self.seeds),
-                             self.state_dim, self.action_dim, self.action_scale, self.action_offset, self.device,
-                             self.compiled, self.matmul)
+        return MethodContext(self.actor, self.config, self.td3, self.task, tuple(self.seeds), self.compute)
 
     def methods(self) -> list[Method]:
         """The training methods this agent runs (every algorithm: the actor's normalisation and the loss terms)."""
-        return [self.normalization, *self.loss_terms]
+        return self.actor_methods.every()
 
     @property
     def execution(self) -> str:
@@ -194,59 +184,33 @@ class OffPolicyAlgorithm:
         return torch.stack([torch.randn(shape, generator=g, device=self.device) for g in self.noise_generators])
 
     def tensors(self) -> dict[str, list]:
-        """The tensors an update reads and writes: parameters and the actor's persistent buffers (detached views,
-        whose identity lasts the agent's life) and Adam's state, looked up anew on each call (loading a checkpoint
-        replaces the Adam state)."""
-        if self._critic_target_views is None:
-            self._critic_target_views = [p.detach() for p in self.critic_target.parameters()]
+        """The tensors an update reads and writes: parameters and the actor's persistent buffers (views,
+        :class:`~ilcsan.rl.algorithms.update_tensors.UpdateTensors`) and Adam's state, looked up anew on each call
+        (loading a checkpoint replaces the Adam state)."""
         return {"actor": self.actor_adam.views, "critic": self.critic_adam.views,
-                "critic_target": self._critic_target_views, "actor_buffers": self.buffer_views(self.actor),
+                "critic_target": self.update_tensors.parameters(self.critic_target),
+                "actor_buffers": self.update_tensors.buffers(self.actor),
                 "actor_adam": self.actor_adam.tensors(), "critic_adam": self.critic_adam.tensors()}
 
-    def buffer_views(self, module: nn.Module) -> list[torch.Tensor]:
-        """Detached views of ``module``'s :func:`persistent_buffers`, made once: what an update reads and writes them
-        through (other tensor objects on the same storage, because a compiled program tells its inputs from the
-        module's own tensors, which it reads as constants, by identity; a checkpoint loads into them in place)."""
-        views = self._buffer_views.get(id(module))
-        if views is None:
-            views = self._buffer_views[id(module)] = [buffer.detach() for buffer in persistent_buffers(module).values()]
-        return views
+    def critic_loss(self, batch: dict[str, torch.Tensor], target: torch.Tensor,
+                    critic: Callable | None = None) -> torch.Tensor:
+        """Σ_k Σ_j mean_b (Q_j(s, a) − y)² for the targets y (K, B): every algorithm's critic loss."""
+        q_values = (critic or self.critic)(batch["obs"], batch["action"])
+        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
 
-    def stateful(self, module: nn.Module, parameters: list[torch.Tensor], buffers: list[torch.Tensor]):
-        """``module`` as a function of its parameters and persistent buffers passed in (:func:`~ilcsan.compute.
-        programs.as_function`): how every pass of an actor inside an update reads its state."""
-        names = self._state_names.get(id(module))
-        if names is None:
-            names = [name for name, _ in module.named_parameters()] + list(persistent_buffers(module))
-            self._state_names[id(module)] = names
-        return as_function(module, [*parameters, *buffers], names)
-
-    def with_loss_terms(self, loss: torch.Tensor, preaction: torch.Tensor | None) -> torch.Tensor:
-        """``loss`` plus each loss term's :meth:`~ilcsan.rl.methods.LossTerm.loss` of ``preaction``, the pre-tanh
-        output (K, B, M) of the pass the algorithm's actor loss evaluated (needed only when a term is on)."""
-        for term in self.loss_terms:
-            loss = loss + term.loss(preaction)
+    def step_critics(self, tensors: dict, batch: dict, target: torch.Tensor) -> torch.Tensor:
+        """One Adam step of the critics' tensors (at ``critic_lr``) on :meth:`critic_loss` toward the targets y, in
+        place; returns the loss."""
+        grads, loss = value_and_grads(self._critic_loss, tensors["critic"], batch, target)
+        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
         return loss
 
-    def actor_gradients(self, grads: list[torch.Tensor]) -> list[torch.Tensor]:
-        """The actor loss's gradients with those of the :attr:`cancelled_parameters` exactly zero."""
-        cancelled = self.cancelled_parameters
-        return [torch.zeros_like(grad) if index in cancelled else grad for index, grad in enumerate(grads)]
+    def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
+        return self.critic_loss(batch, target, as_function(self.critic, critic, self.critic_names))
 
-    def after_actor_step(self, buffers: list[torch.Tensor], record, samples: int) -> None:
-        """The normalisation method's writes after an actor step (in the update program), on the actor's buffers
-        as passed in, from what the loss pass recorded (its aux output)."""
-        self.normalization.after_actor_step(dict(zip(self.actor_buffer_names, buffers, strict=True)), record,
-                                            samples)
-
-    def follow_buffers(self, target: list[torch.Tensor], online: list[torch.Tensor], tau: float) -> None:
-        """b' ← τb + (1 − τ)b' for the :attr:`followed_buffers` of a Polyak-averaged target actor, in place."""
-        if not self.followed_buffers:
-            return
-        target_by_name = dict(zip(self.actor_buffer_names, target, strict=True))
-        online_by_name = dict(zip(self.actor_buffer_names, online, strict=True))
-        torch._foreach_lerp_([target_by_name[name] for name in self.followed_buffers],
-                             [online_by_name[name] for name in self.followed_buffers], tau)
+    def follow_critics(self, tensors: dict) -> None:
+        """θ' ← τθ + (1 − τ)θ' for the target critics, in place."""
+        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], self.td3.tau)
 
     def run(self, program, batch: dict[str, torch.Tensor]):
         """``program(tensors, batch)`` in place, outside autograd (the update makes its own gradients)."""
@@ -269,7 +233,7 @@ class OffPolicyAlgorithm:
         state["critic_optimizer"] = self.critic_adam.seed_state(index, self.critics)
         state["updates"] = self.updates
         state["noise_generator"] = self.noise_generators[index].get_state()
-        normalization = self.normalization.seed_state(index)
+        normalization = self.actor_methods.normalization.seed_state(index)
         if normalization is not None:
             state["normalization"] = normalization
         return state
@@ -283,14 +247,7 @@ class OffPolicyAlgorithm:
         for generator, state in zip(self.noise_generators, states, strict=True):
             generator.set_state(state["noise_generator"])
         self.updates = states[0]["updates"]
-        self.normalization.load_seed_states([state.get("normalization") for state in states])
-
-
-def persistent_buffers(module: nn.Module) -> dict[str, torch.Tensor]:
-    """``module``'s persistent buffers by name: its :func:`~ilcsan.runs.checkpoint.module_state` without the
-    parameters (state such as a normalisation's running statistics; none for an actor without normalisation)."""
-    parameters = {name for name, _ in module.named_parameters()}
-    return {name: tensor for name, tensor in module_state(module).items() if name not in parameters}
+        self.actor_methods.normalization.load_seed_states([state.get("normalization") for state in states])
 
 
 def first_readout(tensors: Mapping[str, torch.Tensor], deployed: nn.Module) -> dict[str, torch.Tensor]:

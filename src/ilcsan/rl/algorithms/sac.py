@@ -13,8 +13,8 @@ code). One update of K seeds, every environment step of an update chunk:
 * critics: y = r + γ(1 − d) (min_j Q'_j(s', a') − α log π(a' | s')), a' ~ π(· | s'); one Adam step on
   Σ_j (Q_j(s, a) − y)²;
 * actor: one Adam step on mean_b (α log π(ã | s) − min_j Q_j(s, ã)), ã ~ π(· | s) reparameterised, with the updated
-  critics (plus the loss terms of the pre-tanh mean μ, :meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.
-  with_loss_terms`);
+  critics (plus the loss terms of the pre-tanh mean μ, :meth:`~ilcsan.rl.methods.actor_methods.
+  ActorMethods.with_loss_terms`);
 * entropy coefficient: one Adam step of log α on −mean_b log α (log π(ã | s) + H̄), H̄ = −M the target entropy
   (SAC's automatic tuning), with the same sample ã;
 * targets: θ' ← τθ + (1 − τ)θ'.
@@ -29,7 +29,6 @@ reads them as they were.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -41,9 +40,12 @@ from torch import nn
 
 from ...compute.programs import CompiledPerShape, as_function, as_program, module_tensors, value_and_grads
 from ...runs.checkpoint import load_state, slice_state
+from ...snn.output import PassOptions
 from ..adam import Adam, adam_
 from .base import OffPolicyAlgorithm
 
+READOUT = PassOptions(preaction=True)
+"""The actor's pass SAC reads: its 2M decoded values (μ, raw log σ) beside the action."""
 LOG_STD_BOUNDS = (-20.0, 2.0)
 """The log-std's clamp (SAC's code and PopSAN's SAC)."""
 LOG_2 = math.log(2.0)
@@ -69,7 +71,6 @@ class SAC(OffPolicyAlgorithm):
         self.entropy = EntropyCoefficient(len(self.seeds), self.td3.initial_entropy_coefficient, self.device)
         self.entropy_adam = Adam(self.entropy, self.td3.entropy_lr)
         self.target_entropy = -float(self.action_dim)
-        self.critic_names = [name for name, _ in self.critic.named_parameters()]
         self.readout_fn = CompiledPerShape(self.actor, self._readout) if self.compiled else self._readout
         constants = [self.scale, self.offset]
         for module in (self.actor, self.critic, self.critic_target, self.entropy):
@@ -78,7 +79,7 @@ class SAC(OffPolicyAlgorithm):
 
     def _readout(self, state: torch.Tensor) -> torch.Tensor:
         """The actor's 2M decoded values (μ, raw log σ) for normalised states (K, B, N) → (K, B, 2M)."""
-        return self.actor(state, with_preaction=True)[1]
+        return self.actor(state, READOUT)[1]
 
     # ------------------------------------------------------------------ the training loop's
     @torch.no_grad()
@@ -99,10 +100,11 @@ class SAC(OffPolicyAlgorithm):
         return {"critic_loss": critic_loss, "actor_loss": actor_loss}
 
     # ------------------------------------------------------------------------------- the losses
-    def sample(self, actor: Callable, states: torch.Tensor,
-               noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(a, log π(a | s), μ) for states (K, B, N) and standard noise ε (K, B, M): a reparameterised sample."""
-        readout = actor(states, with_preaction=True)[1]
+    def sample(self, actor: Callable, states: torch.Tensor, noise: torch.Tensor,
+               options: PassOptions = READOUT) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(a, log π(a | s), μ) for states (K, B, N) and standard noise ε (K, B, M): a reparameterised sample from
+        the actor's pass under ``options`` (which ask for the pre-tanh readout)."""
+        readout = actor(states, options)[1]
         mean, log_std = readout[..., :self.action_dim], readout[..., self.action_dim:]
         log_std = log_std.clamp(*LOG_STD_BOUNDS)
         pre_tanh = mean + log_std.exp() * noise
@@ -118,40 +120,36 @@ class SAC(OffPolicyAlgorithm):
         soft_q = target_critic(batch["next_obs"], next_action).min(dim=1).values - alpha[:, None] * next_log_prob
         return batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * soft_q
 
-    def critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
-        """Σ_k Σ_j mean_b (Q_j(s, a) − y)²."""
-        q_values = as_function(self.critic, critic, self.critic_names)(batch["obs"], batch["action"])
-        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
-
     def actor_loss(self, actor: list, buffers: list, critic: list, alpha: torch.Tensor,
                    batch: dict) -> tuple[torch.Tensor, tuple[torch.Tensor, tuple]]:
         """(Σ_k mean_b (α log π(ã | s) − min_j Q_j(s, ã)) [+ the loss terms of μ], (log π(ã | s) (K, B), what the
         actor's pass recorded)), the pass with the normalisation method's options
-        (:meth:`~ilcsan.rl.methods.Normalization.loss_options`)."""
+        (:meth:`~ilcsan.rl.methods.Normalization.loss_pass`)."""
         record: list = []
-        acting = functools.partial(self.stateful(self.actor, actor, buffers),
-                                   **self.normalization.loss_options(record))
-        action, log_prob, mean = self.sample(acting, batch["obs"], batch["noise"])
+        options = PassOptions(**self.actor_methods.loss_pass(record), preaction=True)
+        acting = self.update_tensors.stateful(self.actor, actor, buffers)
+        action, log_prob, mean = self.sample(acting, batch["obs"], batch["noise"], options)
         q_value = as_function(self.critic, critic, self.critic_names)(batch["obs"], action).min(dim=1).values
-        loss = self.with_loss_terms((alpha[:, None] * log_prob - q_value).mean(dim=-1).sum(), mean)
+        loss = self.actor_methods.with_loss_terms((alpha[:, None] * log_prob - q_value).mean(dim=-1).sum(), mean)
         return loss, (log_prob, tuple(record))
 
     def _update_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
         alpha = tensors["entropy"][0].exp()
         with torch.no_grad():
-            target = self.target_values(batch, self.stateful(self.actor, tensors["actor"], tensors["actor_buffers"]),
+            actor = self.update_tensors.stateful(self.actor, tensors["actor"], tensors["actor_buffers"])
+            target = self.target_values(batch, actor,
                                         as_function(self.critic_target, tensors["critic_target"], self.critic_names),
                                         alpha)
-        grads, critic_loss = value_and_grads(self.critic_loss, tensors["critic"], batch, target)
-        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
+        critic_loss = self.step_critics(tensors, batch, target)
         grads, (actor_loss, (log_prob, record)) = value_and_grads(
             self.actor_loss, tensors["actor"], tensors["actor_buffers"], tensors["critic"], alpha, batch, has_aux=True)
-        adam_(tensors["actor"], self.actor_gradients(grads), *tensors["actor_adam"], lr=self.config.learning_rate)
-        self.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
+        adam_(tensors["actor"], self.actor_methods.gradients(grads), *tensors["actor_adam"],
+              lr=self.config.learning_rate)
+        self.actor_methods.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         # ∂/∂log α of −mean_b log α (log π + H̄), per seed
         entropy_grads = [-(log_prob + self.target_entropy).mean(dim=-1)]
         adam_(tensors["entropy"], entropy_grads, *tensors["entropy_adam"], lr=self.td3.entropy_lr)
-        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], self.td3.tau)
+        self.follow_critics(tensors)
         return critic_loss, actor_loss
 
     def tensors(self) -> dict[str, list]:

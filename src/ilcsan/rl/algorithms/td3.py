@@ -30,7 +30,6 @@ value_and_grads`), Adam is :func:`~ilcsan.rl.adam.adam_`, all in place on the ag
 from __future__ import annotations
 
 import copy
-import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -40,6 +39,7 @@ from torch import nn
 
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
 from ...config import TrainingProtocol
+from ...snn.output import PassOptions
 from ..adam import adam_
 from ..methods import Exploration, Method, MethodContext, TargetActor, exploration_method, target_actor_method
 from .base import OffPolicyAlgorithm
@@ -61,8 +61,6 @@ class TD3(OffPolicyAlgorithm):
         context = self.method_context()
         self.target_method = target_actor_method(self.td3.target_actor)(context)
         self.exploration = exploration_method(self.td3.exploration)(context)
-        self.critic_names = [name for name, _ in self.critic.named_parameters()]
-        self._actor_target_views: list[torch.Tensor] | None = None
         constants = [self.scale, self.offset]
         for module in (self.actor, self.critic, self.actor_target, self.critic_target, self.exploration.module):
             constants += module_tensors(module) if module is not None else []
@@ -122,51 +120,39 @@ class TD3(OffPolicyAlgorithm):
         target_q = (target_critic or self.critic_target)(next_obs, next_action).min(dim=1).values
         return batch["reward"] + td3.gamma * (1.0 - batch["terminal"]) * target_q
 
-    def critic_loss(self, batch: dict[str, torch.Tensor], target: torch.Tensor,
-                    critic: Callable | None = None) -> torch.Tensor:
-        """Σ_k Σ_j mean_b (Q_j(s, a) − y)² for the targets y (K, B)."""
-        q_values = (critic or self.critic)(batch["obs"], batch["action"])
-        return ((q_values - target.unsqueeze(1)) ** 2).mean(dim=-1).sum()
-
     def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
                    critic: Callable | None = None, method_parameters: list | None = None,
                    record: list | None = None) -> torch.Tensor:
         """Σ_k −mean_b Q_1(s, π(s)) plus the loss terms of the pre-tanh output O of that π(s)
-        (:meth:`~ilcsan.rl.algorithms.base.OffPolicyAlgorithm.with_loss_terms`) and the exploration method's terms,
-        π(s) as the method evaluates it (:meth:`~ilcsan.rl.methods.Exploration.actor_action`) with the normalisation
-        method's options (:meth:`~ilcsan.rl.methods.Normalization.loss_options`; ``record`` receives what that pass
-        records); ``method_parameters`` are the exploration method's tensors."""
+        (:meth:`~ilcsan.rl.methods.actor_methods.ActorMethods.with_loss_terms`) and the exploration method's terms,
+        π(s) in a pass as the exploration and normalisation methods ask for it
+        (:meth:`~ilcsan.rl.methods.Exploration.loss_pass`, :meth:`~ilcsan.rl.methods.Normalization.loss_pass`;
+        ``record`` receives what that pass records); ``method_parameters`` are the exploration method's tensors."""
         exploration = self.exploration
         parameters = method_parameters if method_parameters is not None else module_parameters(exploration.module)
-        options = self.normalization.loss_options([] if record is None else record)
-        actor = functools.partial(actor or self.actor, **options)
-        preactions: list[torch.Tensor] = []
-        if self.loss_terms:
-            actor = recording_preaction(actor, preactions)
-        action = exploration.actor_action(actor, batch, parameters)
+        options = PassOptions(**self.actor_methods.loss_pass([] if record is None else record),
+                              **exploration.loss_pass(batch, parameters), preaction=bool(self.actor_methods.loss_terms))
+        output = (actor or self.actor)(batch["obs"], options)
+        action, preaction = output if options.preaction else (output, None)
         loss = -(critic or self.critic)(batch["obs"], action, first_only=True).mean(dim=-1).sum()
-        loss = self.with_loss_terms(loss, preactions[0] if preactions else None)
+        loss = self.actor_methods.with_loss_terms(loss, preaction)
         extra = exploration.loss_terms(parameters, batch)
         return loss if extra is None else loss + extra
 
     # ------------------------------------------------------------------------ the two variants
     def _critic_step(self, tensors: dict, batch: dict) -> torch.Tensor:
         with torch.no_grad():
-            target = self.target_values(batch, self.stateful(self.actor_target, tensors["actor_target"],
-                                                             tensors["actor_target_buffers"]),
+            target_actor = self.update_tensors.stateful(self.actor_target, tensors["actor_target"],
+                                                        tensors["actor_target_buffers"])
+            target = self.target_values(batch, target_actor,
                                         as_function(self.critic_target, tensors["critic_target"], self.critic_names))
-        grads, loss = value_and_grads(self._critic_loss, tensors["critic"], batch, target)
-        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
-        return loss
-
-    def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
-        return self.critic_loss(batch, target, as_function(self.critic, critic, self.critic_names))
+        return self.step_critics(tensors, batch, target)
 
     def _actor_loss(self, actor: list, method: list, critic: list, buffers: list,
                     batch: dict) -> tuple[torch.Tensor, tuple]:
         """The actor loss of the actor's tensors and what its pass recorded (the aux output)."""
         record: list = []
-        loss = self.actor_loss(batch, self.stateful(self.actor, actor, buffers),
+        loss = self.actor_loss(batch, self.update_tensors.stateful(self.actor, actor, buffers),
                                as_function(self.critic, critic, self.critic_names), method, record)
         return loss, tuple(record)
 
@@ -176,25 +162,24 @@ class TD3(OffPolicyAlgorithm):
         (grads, method_grads), (actor_loss, record) = value_and_grads(
             self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], tensors["actor_buffers"],
             batch, wrt=(0, 1), has_aux=True)
-        adam_(tensors["actor"], self.actor_gradients(grads), *tensors["actor_adam"], lr=lr)
+        adam_(tensors["actor"], self.actor_methods.gradients(grads), *tensors["actor_adam"], lr=lr)
         if tensors["exploration"]:  # the exploration method's own parameters, at the actor's rate
             adam_(tensors["exploration"], method_grads, *tensors["exploration_adam"], lr=lr)
-        self.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
+        self.actor_methods.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         tau = self.td3.tau
         if self.target_method.soft_update:
             torch._foreach_lerp_(tensors["actor_target"], tensors["actor"], tau)
-            self.follow_buffers(tensors["actor_target_buffers"], tensors["actor_buffers"], tau)
-        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], tau)
+            self.actor_methods.follow_buffers(tensors["actor_target_buffers"], tensors["actor_buffers"], tau)
+        self.follow_critics(tensors)
         return critic_loss, actor_loss
 
     def tensors(self) -> dict[str, list]:
         """The shared tensors (:meth:`OffPolicyAlgorithm.tensors`), the target actor's parameters and buffers, and
         the exploration method's parameters and Adam state."""
         tensors = super().tensors()
-        if self._actor_target_views is None:
-            self._actor_target_views = [p.detach() for p in self.actor_target.parameters()]
         adam = self.exploration.adam
-        tensors.update(actor_target=self._actor_target_views, actor_target_buffers=self.buffer_views(self.actor_target),
+        tensors.update(actor_target=self.update_tensors.parameters(self.actor_target),
+                       actor_target_buffers=self.update_tensors.buffers(self.actor_target),
                        exploration=adam.views if adam is not None else [])
         if adam is not None:
             tensors["exploration_adam"] = adam.tensors()
@@ -237,8 +222,8 @@ class GaussianActionNoise(Exploration):
     generator, σ = ``td3.exploration_noise`` relative to the action half-range ``scale``."""
 
     def __init__(self, context: MethodContext):
-        self.scale, self.offset = context.action_scale, context.action_offset
-        self.sigma, self.action_dim = context.td3.exploration_noise, context.action_dim
+        self.scale, self.offset = context.task.action_scale, context.task.action_offset
+        self.sigma, self.action_dim = context.td3.exploration_noise, context.task.action_dim
 
     def explore(self, agent, states: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
         low, high = self.offset - self.scale, self.offset + self.scale
@@ -256,15 +241,6 @@ class PolyakTarget(TargetActor):
     def __init__(self, context: MethodContext):
         self.module = copy.deepcopy(context.actor)
         self.module.requires_grad_(False)
-
-
-def recording_preaction(actor: Callable, preactions: list[torch.Tensor]) -> Callable:
-    """``actor`` as a function of states that returns the action and appends its pre-tanh output O to ``preactions``."""
-    def acting(states: torch.Tensor, **kwargs) -> torch.Tensor:
-        action, preaction = actor(states, with_preaction=True, **kwargs)
-        preactions.append(preaction)
-        return action
-    return acting
 
 
 def module_parameters(module: torch.nn.Module | None) -> list[torch.Tensor]:

@@ -12,27 +12,21 @@ import numpy as np
 import torch
 from torch import nn
 
-from ...compute.matmul import MatmulPath
 from ...config import ActorConfig, TrainingProtocol
+from ..agent_settings import ComputeSettings, TaskSpace
 
 
 @dataclass(frozen=True)
 class MethodContext:
-    """What a method may need to build itself: the agent's actor and settings, the task and the seeds."""
+    """What a method may need to build itself: the agent's actor and settings, the task, the seeds and how the agent
+    computes."""
 
     actor: nn.Module
     actor_config: ActorConfig
     td3: TrainingProtocol
-    task: str
-    episode_steps: int | None
+    task: TaskSpace
     seeds: tuple[int, ...]
-    state_dim: int
-    action_dim: int
-    action_scale: np.ndarray
-    action_offset: np.ndarray
-    device: torch.device
-    compile: bool
-    matmul: MatmulPath
+    compute: ComputeSettings
 
 
 class Method:
@@ -67,8 +61,9 @@ class Exploration(Method):
     ``before_updates(evaluations)``: called before each chunk of updates with every seed's evaluation rows.
     ``update_inputs(batch_size)``: tensors the actor loss needs, added to the minibatch of each delayed (actor)
     update, drawn outside the update program.
-    ``actor_action(actor, batch, parameters)``: the action the actor loss evaluates, π(s), with ``actor`` a function
-    of states and ``parameters`` the tensors of :attr:`module` (as the update program passes them).
+    ``loss_pass(batch, parameters)``: what it asks of the actor's pass that the actor loss evaluates, π(s), as
+    fields of :class:`~ilcsan.snn.output.PassOptions` ({}: a plain pass; NoisySAN: the neurons' noise), with
+    ``parameters`` the tensors of :attr:`module` (as the update program passes them).
     ``loss_terms(parameters, batch)``: what the actor loss adds to −Q_1(s, π(s)) (None: nothing). The parameters of
     :attr:`module`, if any, take an Adam step (:attr:`adam`) at the actor's learning rate with each actor step.
     """
@@ -87,8 +82,8 @@ class Exploration(Method):
     def update_inputs(self, batch_size: int) -> dict[str, torch.Tensor]:
         return {}
 
-    def actor_action(self, actor, batch: dict[str, torch.Tensor], parameters: Sequence[torch.Tensor]) -> torch.Tensor:
-        return actor(batch["obs"])
+    def loss_pass(self, batch: dict[str, torch.Tensor], parameters: Sequence[torch.Tensor]) -> dict[str, Any]:
+        return {}
 
     def loss_terms(self, parameters: Sequence[torch.Tensor], batch: dict[str, torch.Tensor]) -> torch.Tensor | None:
         return None
@@ -118,12 +113,13 @@ class Normalization(Method):
     runs it). The defaults, the choice ``none``, do nothing.
 
     The hooks act inside the update program, on the actor's persistent buffers (its state beside the parameters, by
-    name: :func:`~ilcsan.rl.algorithms.base.persistent_buffers`), which every pass of the actor or the target actor
-    in an update reads from tensors passed in and which the hooks write in place, as Adam writes its state, so that
-    the eager and the compiled update agree:
+    name: :func:`~ilcsan.rl.algorithms.update_tensors.persistent_buffers`), which every pass of the actor or the
+    target actor in an update reads from tensors passed in and which the hooks write in place, as Adam writes its
+    state, so that the eager and the compiled update agree:
 
-    ``loss_options(record)``: keyword arguments of the actor's forward pass in the actor's loss ({}: none); ``record``
-    is a list that pass may append to, handed to ``after_actor_step`` (the loss's aux output, detached).
+    ``loss_pass(record)``: what it asks of the actor's pass in the actor's loss, as fields of
+    :class:`~ilcsan.snn.output.PassOptions` ({}: a plain pass); ``record`` is a list that pass may append to, handed
+    to ``after_actor_step`` (the loss's aux output, detached).
     ``after_actor_step(buffers, record, samples)``: after the actor's Adam step, write ``buffers`` (the online actor's,
     name → tensor) in place from ``record``; ``samples`` is the number of states per seed in the minibatch.
     ``followed_buffers(names)``: of the actor's buffer ``names``, those a Polyak-averaged target actor follows as it
@@ -136,7 +132,7 @@ class Normalization(Method):
     def __init__(self, context: MethodContext):
         return None
 
-    def loss_options(self, record: list) -> dict[str, Any]:
+    def loss_pass(self, record: list) -> dict[str, Any]:
         return {}
 
     def after_actor_step(self, buffers: dict[str, torch.Tensor], record: Sequence, samples: int) -> None:

@@ -3,7 +3,7 @@ update, the recalibration, the fold) is :mod:`ilcsan.snn.normalization`, its dec
 :mod:`ilcsan.methods.care_bn`.
 
 * The actor's loss normalises every layer with its minibatch's own statistics μ_B, σ_B² (pooled over the B states
-  and the T steps), and its gradient flows through them (``norm_statistics="batch"``).
+  and the T steps), and its gradient flows through them (a pass with ``statistics="batch"``).
 * After the actor's Adam step, the running statistics move toward that same pass's batch statistics by the
   Kalman-style gain (:func:`~ilcsan.snn.normalization.kalman_update`, B the minibatch's states per seed, as the
   authors' code counts them) — inside the update program, in place on the tensors it is passed.
@@ -19,14 +19,14 @@ update, the recalibration, the fold) is :mod:`ilcsan.snn.normalization`, its dec
 * Every :data:`RECALIBRATION_INTERVAL` environment steps, after that step's updates, the running statistics are
   replaced by the exact ones of :data:`RECALIBRATION_BATCHES` replayed minibatches of
   :data:`RECALIBRATION_BATCH_SIZE` states, normalised by the observation normaliser, layer by layer
-  (:meth:`~ilcsan.snn.actor.SpikingActor.recalibrated_statistics`; P_μ, P_σ² kept), as the authors' code does
+  (:func:`~ilcsan.snn.normalization.recalibrated_statistics`; P_μ, P_σ² kept), as the authors' code does
   every 5 000 steps with 100 batches of 256 (there in one pass per batch, each layer normalised by the statistics
   pooled so far; here exact, one pass per batch and layer, so L times the work). Only the online actor's: its target
   follows them by the Polyak average. The states are drawn by generators of their own, seeded from the run seed and
   the step, so that the run's random streams are untouched. The passes run eagerly, also in a compiled run.
 * Everything else — acting, evaluation, the target actor, the critic's target values (SAC's next action), the
   deployed actor — normalises with the running statistics; exports fold them into the weights
-  (:data:`ilcsan.deploy.state.FOLDS`), so a deployed actor stays additions-only.
+  (:meth:`~ilcsan.snn.normalization.LayerNormalizations.export_fold`), so a deployed actor stays additions-only.
 
 It combines with the other methods: NoisySAN's noise enters after the normalisation (its loss pass uses the batch
 statistics too); Proxy Target's proxy imitates the actor as it acts (with running statistics) and has no running
@@ -41,7 +41,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from ...snn.normalization import RUNNING_BUFFERS, CareBatchNorm, RunningStatistics, kalman_update_
+from ...snn.normalization import (
+    RUNNING_BUFFERS,
+    CareBatchNorm,
+    RunningStatistics,
+    kalman_update_,
+    recalibrated_statistics,
+)
 from .base import MethodContext, Normalization
 
 RECALIBRATION_INTERVAL = 5_000
@@ -61,16 +67,16 @@ class CareBN(Normalization):
     the module's constants when the method is built."""
 
     def __init__(self, context: MethodContext):
-        self.actor, self.seeds, self.device = context.actor, context.seeds, context.device
+        self.actor, self.seeds, self.device = context.actor, context.seeds, context.compute.device
         self.interval = RECALIBRATION_INTERVAL
         self.batches, self.batch_size = RECALIBRATION_BATCHES, RECALIBRATION_BATCH_SIZE
         self.norms = [(name, module.momentum) for name, module in self.actor.named_modules()
                       if isinstance(module, CareBatchNorm)]
         """Each normalised layer's module name (its buffers' prefix) and innovation momentum, in layer order."""
 
-    def loss_options(self, record: list) -> dict[str, Any]:
+    def loss_pass(self, record: list) -> dict[str, Any]:
         """The batch's own statistics, recorded for :meth:`after_actor_step`."""
-        return {"norm_statistics": "batch", "used_statistics": record}
+        return {"statistics": "batch", "record": record}
 
     def after_actor_step(self, buffers: dict[str, torch.Tensor], record: Sequence, samples: int) -> None:
         """The Kalman update of every layer's μ̂, σ̂², P_μ, P_σ² toward the loss pass's batch statistics, in place."""
@@ -93,4 +99,4 @@ class CareBN(Normalization):
         generators = [np.random.default_rng([RECALIBRATION_SALT, seed, step]) for seed in self.seeds]
         batches = [torch.as_tensor(normalizer.normalize(replay.sample_states(generators, self.batch_size)),
                                    device=self.device) for _ in range(self.batches)]
-        self.actor.set_running_statistics_(self.actor.recalibrated_statistics(batches))
+        self.actor.norms.set_running_(recalibrated_statistics(self.actor, batches))

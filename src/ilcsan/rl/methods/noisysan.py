@@ -42,6 +42,7 @@ from ...config import TrainingProtocol
 from ...methods.noisysan import return_reference
 from ...runs.checkpoint import load_state, slice_state
 from ...snn.noise import NeuronNoise, coloured_noise, fft_length, window_covariance
+from ...snn.output import PassOptions
 from ..adam import Adam
 from .base import Exploration, MethodContext
 
@@ -158,7 +159,7 @@ class ExploringActor(nn.Module):
         self.actor, self.exploration = actor, exploration
 
     def forward(self, state: torch.Tensor, unit_noise: torch.Tensor) -> torch.Tensor:
-        return self.actor(state, noise=self.exploration.perturbation(unit_noise))
+        return self.actor(state, PassOptions(noise=self.exploration.perturbation(unit_noise)))
 
 
 class NoisySAN(Exploration):
@@ -169,11 +170,11 @@ class NoisySAN(Exploration):
     def __init__(self, context: MethodContext):
         actor = context.actor
         self.module = NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, context.td3,
-                                       return_reference(context.task, context.td3), context.episode_steps,
-                                       context.seeds, context.device)
+                                       return_reference(context.task.name, context.td3),
+                                       context.task.episode_steps, context.seeds, context.compute.device)
         self.adam = Adam(self.module, context.actor_config.learning_rate)
         exploring = ExploringActor(actor, self.module)
-        self.exploring_fn = CompiledPerShape(exploring) if context.compile else exploring
+        self.exploring_fn = CompiledPerShape(exploring) if context.compute.compile else exploring
 
     @torch.no_grad()
     def explore(self, agent, states: np.ndarray, rngs) -> np.ndarray:
@@ -190,8 +191,8 @@ class NoisySAN(Exploration):
     def update_inputs(self, batch_size: int) -> dict[str, torch.Tensor]:
         return {"actor_noise": self.module.update_noise(batch_size), "penalty_weights": self.module.weights}
 
-    def actor_action(self, actor, batch: dict[str, torch.Tensor], parameters) -> torch.Tensor:
-        return actor(batch["obs"], noise=self.module.perturbation(batch["actor_noise"], parameters[0]))
+    def loss_pass(self, batch: dict[str, torch.Tensor], parameters) -> dict[str, Any]:
+        return {"noise": self.module.perturbation(batch["actor_noise"], parameters[0])}
 
     def loss_terms(self, parameters, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         return self.module.penalty(parameters[0], batch["penalty_weights"])

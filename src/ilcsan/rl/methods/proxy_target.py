@@ -30,7 +30,7 @@ from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ...compute.programs import as_function, as_program, module_tensors, value_and_grads
 from ...config import TrainingProtocol, actor_config
 from ...methods.proxy_target import PROXY_HIDDEN
-from ...snn.actor import DeepActor, build_actor
+from ...snn.actor import DeepActor
 from ..adam import Adam, adam_
 from .base import MethodContext, TargetActor
 
@@ -42,8 +42,8 @@ def build_proxy(state_dim: int, action_dim: int, action_scale: Sequence[float], 
                 seeds: Sequence[int], matmul: MatmulPath = DEFAULT_MATMUL) -> DeepActor:
     """K proxy actors (N, 512, ReLU, 512, ReLU, M, tanh·scale + offset), seed k's from its own generator."""
     config = actor_config("dan", hidden=PROXY_HIDDEN)
-    return build_actor(config, state_dim, action_dim, action_scale, action_offset,
-                       [seed * 7919 + PROXY_SALT for seed in seeds], matmul=matmul)
+    return DeepActor(config, state_dim, action_dim, action_scale, action_offset,
+                     [seed * 7919 + PROXY_SALT for seed in seeds], matmul=matmul)
 
 
 class ProxyTarget(TargetActor):
@@ -53,12 +53,13 @@ class ProxyTarget(TargetActor):
 
     def __init__(self, context: MethodContext):
         td3 = context.td3
-        proxy = build_proxy(context.state_dim, context.action_dim, context.action_scale, context.action_offset,
-                            context.seeds, context.matmul).to(context.device)
+        task, compute = context.task, context.compute
+        proxy = build_proxy(task.state_dim, task.action_dim, task.action_scale, task.action_offset, context.seeds,
+                            compute.matmul).to(compute.device)
         self.module, self.iterations, self.lr = proxy, td3.proxy_iterations, td3.proxy_lr
         self.adam = Adam(proxy, td3.proxy_lr)
         self.names = self.adam.names
-        self.program = as_program(self._regression_steps, module_tensors(proxy), context.compile)
+        self.program = as_program(self._regression_steps, module_tensors(proxy), compute.compile)
 
     def loss(self, states: torch.Tensor, goal: torch.Tensor, parameters: Sequence[torch.Tensor] | None = None
              ) -> torch.Tensor:
