@@ -141,12 +141,6 @@ class RunDirectory:
             raise UserError(f"replay segment {path} is missing or corrupt ({error}); "
                             "the run cannot resume exactly — start it again without --resume") from None
 
-    def evaluation_curve(self) -> tuple[tuple[int, ...], tuple[float, ...]]:
-        """Steps and mean returns of ``metrics.csv`` sorted by step, a repeated step keeping its last line;
-        empty when the file is absent (RunFileError when damaged)."""
-        steps, columns = self.evaluation_columns()
-        return steps, columns.get("eval_return_mean", ())
-
     def evaluation_columns(self) -> tuple[tuple[int, ...], dict[str, tuple[float, ...]]]:
         """Steps of ``metrics.csv`` sorted by step (a repeated step keeping its last line) and, aligned with them,
         ``eval_return_mean`` and each diagnostic column (NaN where a row leaves it empty or the file has no such
