@@ -36,7 +36,6 @@ import numpy as np
 from ..config import RunConfig
 from ..errors import UserError
 from ..files import atomic_savez, atomic_torch_save, atomic_write_json, atomic_write_text, read_json, safe_torch_load
-from ..snn.diagnostics import DIAGNOSTICS
 from .lock import DirectoryLock
 
 CONFIG = "config.json"
@@ -50,12 +49,16 @@ REPLAY = "replay"
 TENSORBOARD = "tensorboard"
 LOCK = ".lock"
 
+DIAGNOSTICS: tuple[str, ...] = ("saturated_actions", "frozen_output_neurons", "surrogate_active",
+                                "mean_abs_preaction", "action_spread")
+"""The diagnostic columns of ``metrics.csv``, in order: what :mod:`ilcsan.snn.diagnostics` measures of a seed's
+actor at each evaluation (each named and defined there)."""
 METRIC_FIELDS: tuple[str, ...] = (
     "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second",
     *DIAGNOSTICS,
 )
 """The columns of ``metrics.csv``, one row per evaluation: the evaluation, the training speed, and the actor's
-diagnostics (:mod:`ilcsan.snn.diagnostics`; empty for runs written before they existed)."""
+diagnostics (:data:`DIAGNOSTICS`; empty for runs written before they existed)."""
 REQUIRED_METRICS: tuple[str, ...] = ("step", "eval_return_mean")
 """The columns a ``metrics.csv`` must have to be read (older or foreign files may lack the others)."""
 
