@@ -16,10 +16,9 @@ from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
-from ilcsan.rl.algorithms.base import first_readout
 from ilcsan.rl.training import Trainer
 from ilcsan.rl.validation import validate_run
-from ilcsan.runs.checkpoint import module_state
+from ilcsan.runs.checkpoint import first_readout, module_state
 from ilcsan.snn.normalization import kalman_update
 
 SMALL = dict(hidden=(16,), population_in=4, population_out=4, timesteps=3)

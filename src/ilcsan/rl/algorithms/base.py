@@ -27,7 +27,7 @@ owns its networks, their Adam states, its random streams and its part of a check
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -38,7 +38,7 @@ from ... import methods
 from ...compute.matmul import DEFAULT_MATMUL, MatmulPath
 from ...compute.programs import CompiledPerShape, as_function, prepare_compilation
 from ...config import ActorConfig, RunConfig, TrainingProtocol
-from ...runs.checkpoint import load_state, module_state, slice_state
+from ...runs.checkpoint import first_readout, load_state, module_state, slice_state
 from ...snn.actor import build_actor
 from ..adam import Adam
 from ..methods import Method, MethodContext, loss_term_methods, normalization_method
@@ -291,12 +291,3 @@ def persistent_buffers(module: nn.Module) -> dict[str, torch.Tensor]:
     parameters (state such as a normalisation's running statistics; none for an actor without normalisation)."""
     parameters = {name for name, _ in module.named_parameters()}
     return {name: tensor for name, tensor in module_state(module).items() if name not in parameters}
-
-
-def first_readout(tensors: Mapping[str, torch.Tensor], deployed: nn.Module) -> dict[str, torch.Tensor]:
-    """The part of an actor's ``tensors`` (its :func:`~ilcsan.runs.checkpoint.module_state` by name) with several
-    readouts per action that ``deployed``, the same actor with one readout, holds: each cut to its shape there from
-    the start, since the first readout's output populations come first in every tensor they occupy (output layer
-    rows, intra-layer blocks, decoder, the output layer's normalisation)."""
-    return {name: tensors[name][tuple(slice(0, size) for size in tensor.shape)]
-            for name, tensor in module_state(deployed).items() if name in tensors}
