@@ -25,8 +25,8 @@ from ..rl.normalizer import RunningNormalizer
 from ..rl.tasks import action_bounds, make_env
 from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT, first_readout, missing_state, module_state
 from ..runs.directory import CHECKPOINT, POLICY, RunDirectory
+from ..runtime.host import HostSide
 from ..snn.actor import build_actor
-from .runtime.host import HostSide
 
 
 def resolve_policy_file(path: str | Path) -> Path:
