@@ -1,10 +1,10 @@
-"""Batch-1 action latency: the additions-only numpy runtime (ilcsan.deploy) vs PyTorch ``Policy.predict``.
+"""Batch-1 action latency: the additions-only numpy runtime (ilcsan.runtime) vs PyTorch ``Policy.predict``.
 
 Usage:
     python benchmarks/deploy_latency.py                 # ILC-SAN, Hopper- and Ant-sized random actors
     python benchmarks/deploy_latency.py --runs RUN ...  # trained runs (observations from one episode)
     python benchmarks/deploy_latency.py --baseline DIR  # also time another copy of the runtime folder (e.g. an
-                                                        # older commit's src/ilcsan/deploy/runtime), interleaved
+                                                        # older commit's), interleaved
 
 A random actor is calibrated to the paper's firing rates (Table fr): one bias shift of the backbone is
 bisected until the mean hidden-layer rate matches the task's FC2 rate, because latency grows with

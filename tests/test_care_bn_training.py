@@ -17,10 +17,9 @@ from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
-from ilcsan.rl.algorithms.base import first_readout
 from ilcsan.rl.training import Trainer
 from ilcsan.rl.validation import validate_run
-from ilcsan.runs.checkpoint import module_state
+from ilcsan.runs.checkpoint import first_readout, module_state
 from ilcsan.snn.normalization import kalman_update
 from ilcsan.snn.output import PassOptions
 

@@ -13,16 +13,18 @@ import numpy as np
 import pytest
 from spiking_policies import FULLY_SPIKING, HAND_SOP, case_id, deployed, hand_made_policy, observations, random_policy
 
-import ilcsan.deploy.runtime
+import ilcsan.deploy
+import ilcsan.runtime
 from ilcsan.analysis.energy import energy_report, measure_firing_rates
 from ilcsan.config import INTRA_MASKS as INTRA_VARIANTS
 from ilcsan.config import actor_config
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import actor_config_of, bundle_arrays, bundle_meta, export_npz
-from ilcsan.deploy.runtime.bundle_format import mask_of_variant
 from ilcsan.errors import UserError
+from ilcsan.runtime.bundle_format import mask_of_variant
 
-RUNTIME_FOLDER = Path(ilcsan.deploy.runtime.__file__).parent
+RUNTIME_FOLDER = Path(ilcsan.runtime.__file__).parent
+DEPLOY_FOLDER = Path(ilcsan.deploy.__file__).parent
 TOLERANCE = 1e-4
 
 # --------------------------------------------------------------------------------- equality
@@ -151,6 +153,21 @@ def test_package_import_without_torch():
     assert result.stdout.strip() == "False"
 
 
+def test_old_runtime_path_warns_and_gives_the_runtimes_objects(monkeypatch):
+    """``ilcsan.deploy.runtime``, the runtime's former path, warns and hands on :mod:`ilcsan.runtime`'s own objects,
+    its modules included."""
+    import importlib
+
+    monkeypatch.delitem(sys.modules, "ilcsan.deploy.runtime", raising=False)
+    with pytest.warns(DeprecationWarning, match="ilcsan.runtime"):
+        old = importlib.import_module("ilcsan.deploy.runtime")
+    assert all(getattr(old, name) is getattr(ilcsan.runtime, name) for name in ilcsan.runtime.__all__)
+    from ilcsan.deploy.runtime.host import normalize
+
+    assert normalize is ilcsan.runtime.host.normalize
+    assert old.pipeline is importlib.import_module("ilcsan.runtime.pipeline")
+
+
 def test_runtime_modules_import_numpy_only():
     modules = sorted(RUNTIME_FOLDER.glob("*.py"))
     assert {path.name for path in modules} >= {"__init__.py", "actor.py", "host.py", "bundle_format.py"}
@@ -161,12 +178,12 @@ def test_runtime_modules_import_numpy_only():
         external = {name for name in imports if not name.startswith(".")}
         assert external <= {"__future__", "json", "math", "numbers", "collections.abc", "dataclasses", "pathlib",
                             "typing", "numpy"}, path.name
-        assert all(name in (".errors", "...errors") or name.count(".") == 1 for name in imports
+        assert all(name in (".errors", "..errors") or name.count(".") == 1 for name in imports
                    if name.startswith(".")), path.name  # only siblings, and the package's UserError
 
 
 def test_package_modules_stay_under_400_lines():
-    for path in [*RUNTIME_FOLDER.glob("*.py"), *RUNTIME_FOLDER.parent.glob("*.py")]:
+    for path in [*RUNTIME_FOLDER.glob("*.py"), *DEPLOY_FOLDER.glob("*.py")]:
         assert len(path.read_text().splitlines()) <= 400, path.name
 
 

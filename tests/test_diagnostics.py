@@ -13,8 +13,8 @@ from ilcsan.actors import build_actor
 from ilcsan.analysis.report import write_report
 from ilcsan.config import RunConfig, TD3Config, actor_config
 from ilcsan.rl.training import Trainer
+from ilcsan.runs.directory import DIAGNOSTICS
 from ilcsan.snn.diagnostics import (
-    DIAGNOSTICS,
     STUCK_EVALUATIONS,
     EvaluationActions,
     constant_saturated_action,

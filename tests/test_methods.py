@@ -190,17 +190,9 @@ def test_a_run_uses_the_registered_method(toy, tmp_path, monkeypatch):
     assert len(calls) == 200 - 150  # every step after the random phase explores through the method
 
 
-def test_td3s_own_methods_live_beside_td3_and_their_old_path_warns(monkeypatch):
-    """The paper's exploration and target actor are TD3's hooks in :mod:`ilcsan.rl.algorithms.td3`; scripts that
-    import them from their old module get the same classes and a DeprecationWarning."""
-    import importlib
-    import sys
-
+def test_td3s_own_methods_live_beside_td3():
+    """The paper's exploration and target actor are TD3's hooks in :mod:`ilcsan.rl.algorithms.td3`."""
     from ilcsan.rl.algorithms import td3
 
     assert methods.declared("exploration", "gaussian").training_class() is td3.GaussianActionNoise
     assert methods.declared("target_actor", "polyak").training_class() is td3.PolyakTarget
-    monkeypatch.delitem(sys.modules, "ilcsan.rl.methods.td3_own", raising=False)
-    with pytest.warns(DeprecationWarning, match="ilcsan.rl.algorithms.td3"):
-        old = importlib.import_module("ilcsan.rl.methods.td3_own")
-    assert (old.GaussianActionNoise, old.PolyakTarget) == (td3.GaussianActionNoise, td3.PolyakTarget)

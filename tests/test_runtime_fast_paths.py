@@ -11,10 +11,10 @@ from ilcsan.config import INTRA_MASKS as INTRA_VARIANTS
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.quantize import quantize_bundle
-from ilcsan.deploy.runtime.host import deterministic_spike_train, li_voltages, normalize
-from ilcsan.deploy.runtime.neurons import neuron_step
-from ilcsan.deploy.runtime.pipeline import Workspace
-from ilcsan.deploy.runtime.synapses import Synapses, accumulate_steps, steps_accumulator
+from ilcsan.runtime.host import deterministic_spike_train, li_voltages, normalize
+from ilcsan.runtime.neurons import neuron_step
+from ilcsan.runtime.pipeline import Workspace
+from ilcsan.runtime.synapses import Synapses, accumulate_steps, steps_accumulator
 
 
 def runtime(policy, int8: bool = False) -> DeployedActor:
@@ -104,7 +104,7 @@ def test_dynamic_neuron_actor_runs_the_generic_step(monkeypatch):
         calls.append(1)
         return neuron_step(*args)
 
-    monkeypatch.setattr("ilcsan.deploy.runtime.pipeline.neuron_step", counting)
+    monkeypatch.setattr("ilcsan.runtime.pipeline.neuron_step", counting)
     batch = observations(policy, 5)
     assert np.abs(actor.act(batch) - policy.predict(batch)).max() <= 1e-4
     assert len(calls) == 5 * len(actor.workspace.ticks)

@@ -12,8 +12,7 @@ from typing import Any
 
 from .config import PRESETS, ActorConfig, RunConfig, TrainingProtocol, actor_config, td3_config_class
 from .errors import UserError
-
-__version__ = "0.1.0"
+from .version import __version__
 
 
 def load(path, compile=False):

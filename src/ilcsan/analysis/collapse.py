@@ -19,7 +19,7 @@ import numpy as np
 
 from ..config import COLLAPSE_RETURN
 from ..files import atomic_write_file
-from ..snn.diagnostics import DIAGNOSTICS
+from ..runs.directory import DIAGNOSTICS
 from .collect import RunRecord
 from .reward_tables import seed_std
 

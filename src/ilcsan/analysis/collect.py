@@ -63,7 +63,7 @@ class RunRecord:
     algorithm: str = field(default="td3", hash=False, compare=False)
     """The off-policy algorithm that trained the actor (config.json; runs written before the choice: TD3)."""
     diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
-    """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.snn.diagnostics.DIAGNOSTICS`) at each of ``steps``,
+    """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.runs.directory.DIAGNOSTICS`) at each of ``steps``,
     NaN where it was not measured."""
     wall_seconds: float | None = field(default=None, hash=False, compare=False)
     """Wall-clock time of the training process to ``steps_done`` (result.json; seeds stacked in one process share

@@ -65,11 +65,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..config import INTRA_MASKS, SPIKING_ENCODERS, ActorConfig, actor_config
-from ..deploy.runtime.synapses import GROUP_FC, INTRA_FC, fc_name
 from ..errors import UserError
 from ..paper.published import ENERGY_PER_FLOP_PJ, ENERGY_PER_SOP_PJ, FIRING_RATES, TASKS
 from ..rl import evaluation
 from ..rl.tasks import trained_contact_forces
+from ..runtime.synapses import GROUP_FC, INTRA_FC, fc_name
 
 INTRA_SYNAPSES_PER_POPULATION = {  # (self, lateral) kept → synapses of one P×P block
     (True, True): lambda p: p * p, (True, False): lambda p: p, (False, True): lambda p: p * (p - 1),

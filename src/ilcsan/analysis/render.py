@@ -18,8 +18,9 @@ from collections.abc import Sequence
 
 from ..config import CONTACT_FORCE_TASKS
 from ..paper.layouts import STEPS
+from ..runs.directory import DIAGNOSTICS
 from ..runs.provenance import differences
-from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS
+from ..snn.diagnostics import STUCK_EVALUATIONS
 from .collect import SkippedRun
 from .comparison import Aggregate, Comparison, Interval, TableComparison
 from .followups import FOLLOW_UPS, NOT_FOUND

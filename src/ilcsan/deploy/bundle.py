@@ -1,6 +1,6 @@
 """The ``.npz`` deploy bundle of a trained actor (``ilcsan export --format npz``; :mod:`ilcsan.deploy.export`).
 
-Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.deploy.runtime` with
+Deploy bundle (float32 arrays, plus a JSON string ``meta``), read by :mod:`ilcsan.runtime` with
 numpy only. The arrays are the actor's exported state (:mod:`ilcsan.deploy.state`: its parameters with the masks
 applied; a persistent buffer folded in, or the export refused):
 
@@ -20,7 +20,7 @@ meta                   str (JSON)    see :func:`bundle_meta`
 =====================  ============  =========================================================
 
 The meta is the actor's :meth:`~ilcsan.config.ActorConfig.to_dict` with two keys renamed
-(:data:`~ilcsan.deploy.runtime.CONFIG_META_KEYS`: ``timesteps`` → ``T``, ``decoder`` → ``statistic``),
+(:data:`~ilcsan.runtime.CONFIG_META_KEYS`: ``timesteps`` → ``T``, ``decoder`` → ``statistic``),
 the intra-layer mask as flags (``intra_mask``, :class:`~ilcsan.config.IntraMask`), the reset voltages
 ``v_reset`` = ``v_reset_li`` = 0, ``output`` = "tanh", the ``task``, the frozen normaliser (``obs_mean``,
 ``obs_std``, ``obs_clip``) and the action bounds (``action_scale``, ``action_offset``); int8 bundles add
@@ -38,9 +38,9 @@ import numpy as np
 
 from ..config import INTRA_MASKS, WEIGHT_FORMATS, ActorConfig
 from ..files import atomic_savez
+from ..runtime import CONFIG_META_KEYS
 from .policy import Policy
 from .quantize import quantize_bundle
-from .runtime import CONFIG_META_KEYS
 from .state import export_state, exported_config
 
 WEIGHTS = tuple(WEIGHT_FORMATS)

@@ -22,12 +22,11 @@ from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig
 from ..errors import UserError
 from ..files import safe_torch_load
 from ..rl.algorithms import algorithm_class
-from ..rl.algorithms.base import first_readout
 from ..rl.normalizer import RunningNormalizer
 from ..rl.tasks import action_bounds, make_env
-from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT, missing_state, module_state
+from ..runs.checkpoint import CHECKPOINT_FORMAT, POLICY_FORMAT, first_readout, missing_state, module_state
 from ..runs.directory import CHECKPOINT, POLICY, RunDirectory
-from .runtime.host import HostSide
+from ..runtime.host import HostSide
 
 
 def resolve_policy_file(path: str | Path) -> Path:

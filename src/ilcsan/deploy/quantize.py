@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UserError
-from .runtime import SCALE_SUFFIX
+from ..runtime import SCALE_SUFFIX
 
 BITS = 8
 LEVELS = 2 ** (BITS - 1) - 1  # 127: symmetric range [−127, 127]

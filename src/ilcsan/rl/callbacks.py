@@ -13,7 +13,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..snn.diagnostics import DIAGNOSTICS, STUCK_EVALUATIONS, is_stuck
+from ..runs.directory import DIAGNOSTICS
+from ..snn.diagnostics import STUCK_EVALUATIONS, is_stuck
 
 STATUS_EVERY = 200
 """Steps between two updates of the progress bar's status text."""

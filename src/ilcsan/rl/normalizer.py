@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..deploy.runtime.host import normalize
 from ..errors import UserError
+from ..runtime.host import normalize
 
 DEFAULT_CLIP = 3.0
 EPSILON = 1e-8
@@ -44,7 +44,7 @@ class RunningNormalizer:
 
     def normalize(self, observations: np.ndarray) -> np.ndarray:
         """(K, ..., N) raw observations → clipped z-scores, float32: the deployed actor's normaliser
-        (:func:`ilcsan.deploy.runtime.host.normalize`) with each seed's current statistics."""
+        (:func:`ilcsan.runtime.host.normalize`) with each seed's current statistics."""
         shape = (self.mean.shape[0],) + (1,) * (observations.ndim - 2) + (self.mean.shape[1],)
         return normalize(observations, self.mean.reshape(shape), self.std.reshape(shape), self.clip)
 

@@ -2,7 +2,8 @@
 
 The run and its parts give and take their own state (``seed_state``/``load_seed_states``); this module owns the files:
 where they go, the checks a checkpoint must pass to resume, the per-seed slicing helpers the parts use
-(:func:`slice_state`, :func:`load_state`: parameters and persistent buffers), and the two-phase commit.
+(:func:`slice_state`, :func:`load_state`: parameters and persistent buffers; :func:`first_readout`: the acting
+readout's part of an actor with several), and the two-phase commit.
 
 K seeds train in stacked weights (:mod:`ilcsan.rl.algorithms`), but each seed's folder holds an ordinary
 one-seed checkpoint: its slice of every weight, persistent buffer and Adam moment (the critics' slices are C times
@@ -17,6 +18,7 @@ between is completed or undone by :func:`finish_interrupted_commit` on resume.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Mapping
 from typing import Any, Protocol
 
 import numpy as np
@@ -57,6 +59,16 @@ def missing_state(module: torch.nn.Module, name: str) -> str:
         return f"no {name!r}: it is incomplete or belongs to another actor"
     return (f"no {name!r}, a persistent buffer (state such as running statistics) this actor keeps: it was saved "
             "by another actor or by an ilcsan that did not save buffers")
+
+
+def first_readout(tensors: Mapping[str, torch.Tensor], deployed: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """The part of an actor's ``tensors`` (its :func:`module_state` by name) with several readouts per action that
+    ``deployed``, the same actor with one readout, holds: each cut to its shape there from the start, since the first
+    readout's output populations come first in every tensor they occupy (output layer rows, intra-layer blocks,
+    decoder, the output layer's normalisation). A SAC checkpoint's actor read as a policy, or deployed, is this
+    part: its mean's populations."""
+    return {name: tensors[name][tuple(slice(0, size) for size in tensor.shape)]
+            for name, tensor in module_state(deployed).items() if name in tensors}
 
 
 def slice_state(module: torch.nn.Module, index: int, factor: int) -> dict[str, torch.Tensor]:

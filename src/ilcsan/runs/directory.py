@@ -36,7 +36,6 @@ import numpy as np
 from ..config import RunConfig
 from ..errors import UserError
 from ..files import atomic_savez, atomic_torch_save, atomic_write_json, atomic_write_text, read_json, safe_torch_load
-from ..snn.diagnostics import DIAGNOSTICS
 from .lock import DirectoryLock
 
 CONFIG = "config.json"
@@ -50,12 +49,16 @@ REPLAY = "replay"
 TENSORBOARD = "tensorboard"
 LOCK = ".lock"
 
+DIAGNOSTICS: tuple[str, ...] = ("saturated_actions", "frozen_output_neurons", "surrogate_active",
+                                "mean_abs_preaction", "action_spread")
+"""The diagnostic columns of ``metrics.csv``, in order: what :mod:`ilcsan.snn.diagnostics` measures of a seed's
+actor at each evaluation (each named and defined there)."""
 METRIC_FIELDS: tuple[str, ...] = (
     "step", "eval_return_mean", "eval_return_std", "eval_length_mean", "wall_seconds", "steps_per_second",
     *DIAGNOSTICS,
 )
 """The columns of ``metrics.csv``, one row per evaluation: the evaluation, the training speed, and the actor's
-diagnostics (:mod:`ilcsan.snn.diagnostics`; empty for runs written before they existed)."""
+diagnostics (:data:`DIAGNOSTICS`; empty for runs written before they existed)."""
 REQUIRED_METRICS: tuple[str, ...] = ("step", "eval_return_mean")
 """The columns a ``metrics.csv`` must have to be read (older or foreign files may lack the others)."""
 
@@ -140,12 +143,6 @@ class RunDirectory:
         except (OSError, KeyError, ValueError) as error:
             raise UserError(f"replay segment {path} is missing or corrupt ({error}); "
                             "the run cannot resume exactly — start it again without --resume") from None
-
-    def evaluation_curve(self) -> tuple[tuple[int, ...], tuple[float, ...]]:
-        """Steps and mean returns of ``metrics.csv`` sorted by step, a repeated step keeping its last line;
-        empty when the file is absent (RunFileError when damaged)."""
-        steps, columns = self.evaluation_columns()
-        return steps, columns.get("eval_return_mean", ())
 
     def evaluation_columns(self) -> tuple[tuple[int, ...], dict[str, tuple[float, ...]]]:
         """Steps of ``metrics.csv`` sorted by step (a repeated step keeping its last line) and, aligned with them,

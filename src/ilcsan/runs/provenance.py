@@ -28,6 +28,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from ..version import __version__
+
 GIT_TIMEOUT_SECONDS = 5.0
 LIBRARIES = ("torch", "gymnasium", "mujoco")
 """The libraries whose versions a segment records (their distribution names)."""
@@ -40,8 +42,6 @@ def collect(step: int, matmul: str, matmul_path: str, device: str = "cpu") -> di
     (:func:`~ilcsan.rl.matmul_choice.choose_matmul_path`: ``aten`` (MKL), ``onednn`` or ``bf16``); ``threads`` is
     torch's intra-op thread count now, so collect after the run has applied ``--threads``."""
     import torch
-
-    from .. import __version__
 
     commit, dirty = source_revision(Path(__file__).resolve().parents[1])
     return {

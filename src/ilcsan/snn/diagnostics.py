@@ -3,7 +3,8 @@
 The decoder's output is O = V_T = Σ_t (W_D S_t + b_D) (Eq. (7)-(8a), α_V^LI = 1) and the action a = tanh(O).
 Once |O| is large, tanh'(O) ≈ 0 and the critic's gradient barely reaches the actor; once the output spikes no
 longer depend on the state, the actor computes a constant and the surrogate gradient (|H_t − V_th| < w, Section
-III-D) is the only way back. Five numbers per seed, measured at every evaluation (:data:`DIAGNOSTICS`):
+III-D) is the only way back. Five numbers per seed, measured at every evaluation (the columns
+:data:`ilcsan.runs.directory.DIAGNOSTICS` of ``metrics.csv``):
 
 ``saturated_actions``      share of action components with |a − offset| > 0.99 · scale (|tanh(O)| > 0.99) over the
                            evaluation's states;
@@ -29,9 +30,6 @@ import torch
 
 from .output import ActorOutput
 
-DIAGNOSTICS: tuple[str, ...] = ("saturated_actions", "frozen_output_neurons", "surrogate_active",
-                                "mean_abs_preaction", "action_spread")
-"""The diagnostic columns of ``metrics.csv``, in order."""
 DIAGNOSTIC_STATES = 1000
 """Replayed states per seed on which each evaluation measures the replay-batch diagnostics."""
 SATURATION = 0.99

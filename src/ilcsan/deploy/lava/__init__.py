@@ -22,7 +22,7 @@ INSTALLED_STAMP = ".ilcsan-installed"
 def lava_python() -> Path:
     """The Python of the Lava environment: ``$ILCSAN_LAVA_PYTHON``, else the checkout's ``.venv-lava`` once
     ``scripts/setup-lava`` has finished installing it."""
-    from ..runtime.errors import UserError
+    from ...runtime.errors import UserError
 
     configured = os.environ.get(LAVA_PYTHON_VARIABLE)
     environment = Path(__file__).resolve().parents[4] / ".venv-lava"

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime import DeployedActor
-from ..runtime.errors import UserError
+from ...runtime import DeployedActor
+from ...runtime.errors import UserError
 from . import run_options
 from .plan import encoder_spikes, fix_plan, host_action, plan_actor, simulate
 

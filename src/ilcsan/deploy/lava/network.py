@@ -21,7 +21,7 @@ from lava.proc.lif.process import LIF
 from lava.proc.monitor.process import Monitor
 from lava.utils.weightutils import SignMode
 
-from ..runtime import DeployedActor
+from ...runtime import DeployedActor
 from .plan import (
     DECODER,
     INPUT,

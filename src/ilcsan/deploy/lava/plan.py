@@ -41,9 +41,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..runtime import DeployedActor
-from ..runtime.errors import UserError
-from ..runtime.host import select_statistic, squash
+from ...runtime import DeployedActor
+from ...runtime.errors import UserError
+from ...runtime.host import select_statistic, squash
 
 INPUT = "input"
 """The host's source of each block: the encoder's spikes and the clock channels."""

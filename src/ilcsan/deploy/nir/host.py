@@ -2,7 +2,7 @@
 
 ``observation → normalize → encode → (T, N·P_in) spikes`` feeds the graph's input at every step;
 ``(T, ·) graph outputs → [LI integrator, Eq. (7), target portable] → statistic, Eq. (8) → offset + scale · tanh``
-gives the action. Every step is a function of the numpy runtime (:mod:`ilcsan.deploy.runtime.host`), so a NIR
+gives the action. Every step is a function of the numpy runtime (:mod:`ilcsan.runtime.host`), so a NIR
 consumer and the additions-only runtime compute the host parts identically; the constants come from the
 graph's metadata (:func:`read_host`).
 """
@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from ...errors import UserError
-from ..runtime.bundle_format import check_encoder_widths, check_vectors
-from ..runtime.host import encode, li_voltages, normalize, select_statistic, squash
+from ...runtime.bundle_format import check_encoder_widths, check_vectors
+from ...runtime.host import encode, li_voltages, normalize, select_statistic, squash
 from .graph import FORMAT
 from .interpreter import simulate_nir
 

@@ -27,7 +27,7 @@ owns its networks, their Adam states, its random streams and its part of a check
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,7 +38,7 @@ from ... import methods
 from ...actors import build_actor
 from ...compute.programs import CompiledPerShape, as_function, prepare_compilation, value_and_grads
 from ...config import ActorConfig, RunConfig, TrainingProtocol
-from ...runs.checkpoint import load_state, module_state, slice_state
+from ...runs.checkpoint import first_readout, load_state, module_state, slice_state
 from ..adam import Adam, adam_
 from ..agent_settings import EAGER_ON_CPU, ComputeSettings, TaskSpace
 from ..methods import Method, MethodContext
@@ -248,12 +248,3 @@ class OffPolicyAlgorithm:
             generator.set_state(state["noise_generator"])
         self.updates = states[0]["updates"]
         self.actor_methods.normalization.load_seed_states([state.get("normalization") for state in states])
-
-
-def first_readout(tensors: Mapping[str, torch.Tensor], deployed: nn.Module) -> dict[str, torch.Tensor]:
-    """The part of an actor's ``tensors`` (its :func:`~ilcsan.runs.checkpoint.module_state` by name) with several
-    readouts per action that ``deployed``, the same actor with one readout, holds: each cut to its shape there from
-    the start, since the first readout's output populations come first in every tensor they occupy (output layer
-    rows, intra-layer blocks, decoder, the output layer's normalisation)."""
-    return {name: tensors[name][tuple(slice(0, size) for size in tensor.shape)]
-            for name, tensor in module_state(deployed).items() if name in tensors}

@@ -2,7 +2,7 @@
 when this folder is copied on its own (then the relative import has no package above it)."""
 
 try:
-    from ...errors import UserError
+    from ..errors import UserError
 except ImportError:  # copied standalone: no ilcsan package around this folder
 
     class UserError(ValueError):  # type: ignore[no-redef]
