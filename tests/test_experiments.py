@@ -507,7 +507,7 @@ def test_estimates_assume_the_setting_not_the_cpu(monkeypatch):
     from ilcsan.methods import noisysan, proxy_target
 
     assert (f"training: Proxy Target 1 + {proxy_target.COST_PER_ITERATION:g}·K, "
-            f"NoisySAN {noisysan.NoisySAN.step_cost:g}") in footer
+            f"NoisySAN {noisysan.NoisySANDeclaration.step_cost:g}") in footer
     monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "fast")
     with pytest.raises(UserError, match="ILCSAN_STEPS_PER_SECOND='fast' must be a positive number"):
         estimate.steps_per_second_default()

@@ -124,8 +124,9 @@ def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_f
         "td3": "td3", "sac": "sac", "ddpg": "ddpg"}
     dan_hopper = estimate.actor_step_cost("dan", "Hopper")
     assert [run_step_cost("Hopper", row) for row in spec.rows] == pytest.approx(
-        [1.0, sac.SAC.step_cost, td3.DDPG.step_cost * dan_hopper]), "DAN's own step times DDPG's cost"
-    assert sac.SAC.step_cost != 1.0 and td3.DDPG.step_cost != 1.0
+        [1.0, sac.SACDeclaration.step_cost, td3.DDPGDeclaration.step_cost * dan_hopper]
+    ), "DAN's own step times DDPG's cost"
+    assert sac.SACDeclaration.step_cost != 1.0 and td3.DDPGDeclaration.step_cost != 1.0
     listing = list_tables([spec], 100.0, 1)
     assert re.search(r"sac +sac +preset=ilc-san algorithm=sac\n", listing)
     assert re.search(r"td3 +td3 +preset=ilc-san\n", listing), "the default algorithm is not spelled out"

@@ -299,7 +299,7 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
 def test_a_proxy_runs_products_are_what_its_declaration_says(monkeypatch):
     """run_products names no method: a proxy run's products are a plain run's changed by Proxy Target's declared
     hook (the proxy's fit and forward, the actor's forward over its regression targets, no target actor's pass)."""
-    from ilcsan.methods.proxy_target import PROXY_HIDDEN, ProxyTarget
+    from ilcsan.methods.proxy_target import PROXY_HIDDEN, ProxyTargetDeclaration
 
     def config(target_actor: str) -> RunConfig:
         return RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
@@ -317,5 +317,5 @@ def test_a_proxy_runs_products_are_what_its_declaration_says(monkeypatch):
     for d_in, d_out in ((3, PROXY_HIDDEN[0]), (PROXY_HIDDEN[-1], 1)):  # (a square layer's two products share a shape)
         fit = layer_products(2, 16, d_in, d_out)
         assert [proxy[product] for product in fit] == [4.0, 3.0, 3.0]  # K regression steps, and π' once more
-    monkeypatch.setattr(ProxyTarget, "products", classmethod(lambda cls, *args: None))
+    monkeypatch.setattr(ProxyTargetDeclaration, "products", classmethod(lambda cls, *args: None))
     assert run_products(config("proxy"), 3, 1, 200) == plain  # without its hook, nothing of the proxy is counted

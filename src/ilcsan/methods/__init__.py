@@ -8,8 +8,8 @@ and the products a run's matmul path is measured on. Its training (the hooks, wi
 :mod:`ilcsan.rl.methods` and :mod:`ilcsan.rl.algorithms`, imported only when a run trains, so that this package, the
 configuration and the command line stay torch-free.
 
-Adding a method: a module here with its declaration (and a module of its hooks beside the others), and one line
-below. The first declaration registered of a kind is that kind's default, the ILC-SAN paper's choice.
+Adding a method: a module here with its declaration, named ``<Method>Declaration`` (its hooks, a module beside the
+others, are the class named ``<Method>``), and one line below. The first declaration registered of a kind is that kind's default, the ILC-SAN paper's choice.
 """
 
 from __future__ import annotations
@@ -126,9 +126,9 @@ def check_run(task: str, algorithm: str, actor: Any, td3: Any) -> None:
         method.check(task, td3)
 
 
-for _method in (td3.TD3, td3.DDPG, sac.SAC,
-                defaults.PolyakTarget, proxy_target.ProxyTarget,
-                defaults.GaussianActionNoise, noisysan.NoisySAN,
-                defaults.NoNormalization, care_bn.CareBN,
-                preaction_penalty.PreactionPenalty):
+for _method in (td3.TD3Declaration, td3.DDPGDeclaration, sac.SACDeclaration,
+                defaults.PolyakTargetDeclaration, proxy_target.ProxyTargetDeclaration,
+                defaults.GaussianActionNoiseDeclaration, noisysan.NoisySANDeclaration,
+                defaults.NoNormalizationDeclaration, care_bn.CareBNDeclaration,
+                preaction_penalty.PreactionPenaltyDeclaration):
     register(_method)

@@ -8,7 +8,7 @@ from ..errors import UserError
 from .declaration import Declared
 
 
-class CareBN(Declared):
+class CareBNDeclaration(Declared):
     kind, name, title = "normalization", "care-bn", "CaRe-BN"
     paper = ("CaRe-BN (Xu et al., ICLR 2026): batch normalisation of each synaptic layer's current, pooled over the "
              "batch and the T steps; batch statistics in the actor's loss, running statistics (Kalman-style gain, "

@@ -7,7 +7,7 @@ from __future__ import annotations
 from .declaration import Declared
 
 
-class PolyakTarget(Declared):
+class PolyakTargetDeclaration(Declared):
     kind, name, title = "target_actor", "polyak", "the Polyak-averaged target actor"
     paper = "the Polyak-averaged (soft-updated) copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
     option_help = "polyak, the Polyak-averaged copy of the actor (the paper)"
@@ -15,14 +15,14 @@ class PolyakTarget(Declared):
     training = "ilcsan.rl.algorithms.td3:PolyakTarget"
 
 
-class GaussianActionNoise(Declared):
+class GaussianActionNoiseDeclaration(Declared):
     kind, name, title = "exploration", "gaussian", "Gaussian action noise"
     paper = "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
     option_help = "TD3's Gaussian action noise (the paper)"
     training = "ilcsan.rl.algorithms.td3:GaussianActionNoise"
 
 
-class NoNormalization(Declared):
+class NoNormalizationDeclaration(Declared):
     kind, name, title = "normalization", "none", "no normalisation"
     paper = "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)"
     option_help = "none (the paper)"

@@ -29,7 +29,7 @@ def return_reference(task: str, td3) -> float:
                     f"penalty reaches full weight; NoisySAN's values: Hopper 4000, Ant 6000, HalfCheetah 12000)")
 
 
-class NoisySAN(Declared):
+class NoisySANDeclaration(Declared):
     kind, name, title = "exploration", "noisy", "NoisySAN"
     paper = ("NoisySAN: coloured noise in every spiking layer's charge and spike transmission and in the decoder, "
              "with a learned decoder noise scale (Chen et al., arXiv 2403.04162)")

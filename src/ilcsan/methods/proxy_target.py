@@ -15,7 +15,7 @@ COST_PER_ITERATION = 0.6
 """A training step's time grows by this fraction of a plain step per regression step (``proxy_iterations``)."""
 
 
-class ProxyTarget(Declared):
+class ProxyTargetDeclaration(Declared):
     kind, name, title = "target_actor", "proxy", "Proxy Target"
     paper = "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)"
     option_help = ("proxy, Proxy Target's continuous proxy imitating the online actor (Xu et al. 2025; spiking actors "
