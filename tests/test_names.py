@@ -21,3 +21,13 @@ def test_no_class_name_is_defined_twice():
             if isinstance(node, ast.ClassDef):
                 defined[node.name].append(str(path.relative_to(PACKAGE)))
     assert {name: places for name, places in defined.items() if len(places) > 1} == {}
+
+
+def test_the_default_names_are_the_registered_defaults():
+    """:data:`~ilcsan.methods.DEFAULT_ALGORITHM` and :data:`~ilcsan.methods.NO_NORMALIZATION` are the first
+    registered of their kinds (:func:`ilcsan.methods.default`) and the defaults of a run and of an actor."""
+    from ilcsan import methods
+    from ilcsan.config import ActorConfig, RunConfig
+
+    assert methods.default("algorithm") == methods.DEFAULT_ALGORITHM == RunConfig().algorithm
+    assert methods.default("normalization") == methods.NO_NORMALIZATION == ActorConfig().normalization

@@ -251,9 +251,9 @@ def validate(config: ActorConfig) -> ActorConfig:
         raise UserError(f"the backbone needs 1 to {MAX_HIDDEN_LAYERS} hidden layers, got {len(config.hidden)}")
     if any(width < 1 for width in config.hidden):
         raise UserError(f"hidden layer widths must be at least 1, got {list(config.hidden)}")
-    if config.normalization != "none" and config.network != "spiking":
+    if config.normalization != methods.NO_NORMALIZATION and config.network != "spiking":
         raise UserError(f"--normalization {config.normalization} normalises a spiking actor's synaptic currents; "
-                        "DAN (--network deep) has none: use --normalization none")
+                        f"DAN (--network deep) has none: use --normalization {methods.NO_NORMALIZATION}")
     return config
 
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TrainingProtocol, method_settings, td3_config_class
 from ..errors import UserError
+from ..methods import DEFAULT_ALGORITHM
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
 
@@ -60,7 +61,7 @@ class RunRecord:
     """``eval_return_mean`` at each of ``steps``."""
     td3: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
     """The run's TD3 settings as config.json holds them (empty for runs written without them)."""
-    algorithm: str = field(default="td3", hash=False, compare=False)
+    algorithm: str = field(default=DEFAULT_ALGORITHM, hash=False, compare=False)
     """The off-policy algorithm that trained the actor (config.json; runs written before the choice: TD3)."""
     diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
     """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.runs.directory.DIAGNOSTICS`) at each of ``steps``,
@@ -189,7 +190,8 @@ def read_run(directory: str | Path) -> RunRecord:
     return RunRecord(
         path=run.path, task=task, seed=seed, label=label, table=table, row=row, actor=actor,
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
-        finished=finished, steps=steps, returns=returns, td3=td3, algorithm=str(config.get("algorithm") or "td3"),
+        finished=finished, steps=steps, returns=returns, td3=td3,
+        algorithm=str(config.get("algorithm") or DEFAULT_ALGORITHM),
         diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
         wall_seconds=_wall_seconds(result), provenance=_provenance(run),
         contact_forces=str(config.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES),
@@ -259,7 +261,7 @@ def _parse_result(result: Mapping[str, Any],
     return best_return, best_step, steps_done, steps_total, finished
 
 
-def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any], algorithm: str = "td3") -> str:
+def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any], algorithm: str = DEFAULT_ALGORITHM) -> str:
     """Algorithm, actor settings and training method (every declared method's settings,
     :func:`~ilcsan.config.method_settings`) as one comparable key; a setting a saved config lacks (saved before it
     existed) counts as its default, as it does when the run is loaded."""

@@ -9,7 +9,8 @@ and the products a run's matmul path is measured on. Its training (the hooks, wi
 configuration and the command line stay torch-free.
 
 Adding a method: a module here with its declaration, named ``<Method>Declaration`` (its hooks, a module beside the
-others, are the class named ``<Method>``), and one line below. The first declaration registered of a kind is that kind's default, the ILC-SAN paper's choice.
+others, are the class named ``<Method>``), and one line below. The first declaration registered of a kind is that
+kind's default, the ILC-SAN paper's choice (:data:`DEFAULT_ALGORITHM`, :data:`NO_NORMALIZATION` name two).
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from typing import Any
 from ..errors import UserError
 from . import care_bn, defaults, noisysan, preaction_penalty, proxy_target, sac, td3
 from .declaration import KINDS, TD3_SELECTORS, Declared, MethodProducts
+from .defaults import DEFAULT_ALGORITHM, NO_NORMALIZATION
 
-__all__ = ["KINDS", "TD3_SELECTORS", "Declared", "MethodProducts", "check_run", "declared", "default", "either",
-           "every", "of_run", "papers", "register", "registered", "relative_cost", "selected", "unregister"]
+__all__ = ["DEFAULT_ALGORITHM", "KINDS", "NO_NORMALIZATION", "TD3_SELECTORS", "Declared", "MethodProducts",
+           "check_run", "declared", "default", "either", "every", "of_run", "papers", "register", "registered",
+           "relative_cost", "selected", "unregister"]
 
 _REGISTRY: dict[str, dict[str, type[Declared]]] = {kind: {} for kind in KINDS}
 

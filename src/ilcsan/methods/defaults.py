@@ -6,6 +6,13 @@ from __future__ import annotations
 
 from .declaration import Declared
 
+DEFAULT_ALGORITHM = "td3"
+"""The algorithm of a run, a grid row or a saved file that names none: TD3, the paper's
+(:class:`~ilcsan.methods.td3.TD3Declaration`)."""
+NO_NORMALIZATION = "none"
+"""The normalisation that leaves the synaptic currents as they are, the paper's (:class:`NoNormalizationDeclaration`);
+an exported actor's, its normalisation folded into the weights."""
+
 
 class PolyakTargetDeclaration(Declared):
     kind, name, title = "target_actor", "polyak", "the Polyak-averaged target actor"
@@ -23,7 +30,7 @@ class GaussianActionNoiseDeclaration(Declared):
 
 
 class NoNormalizationDeclaration(Declared):
-    kind, name, title = "normalization", "none", "no normalisation"
+    kind, name, title = "normalization", NO_NORMALIZATION, "no normalisation"
     paper = "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)"
     option_help = "none (the paper)"
     training = "ilcsan.rl.methods.base:Normalization"

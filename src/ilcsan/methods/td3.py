@@ -4,10 +4,11 @@ algorithm shares (:class:`ilcsan.config.TrainingProtocol`)."""
 from __future__ import annotations
 
 from .declaration import Declared
+from .defaults import DEFAULT_ALGORITHM
 
 
 class TD3Declaration(Declared):
-    kind, name, title = "algorithm", "td3", "TD3"
+    kind, name, title = "algorithm", DEFAULT_ALGORITHM, "TD3"
     paper = ("TD3 (Fujimoto, van Hoof, Meger, ICML 2018): twin critics, target policy smoothing, delayed actor "
              "updates; how the ILC-SAN paper trains every actor")
     option_help = "td3 (the paper's)"
