@@ -23,7 +23,7 @@ from ilcsan.compute.matmul import (
     product_times,
 )
 from ilcsan.compute.programs import DirectProgram, value_and_grads
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.rl.matmul_choice import run_products
 from ilcsan.rl.training import Trainer
 from ilcsan.snn.ensemble import EnsembleLinear, EnsembleMLP, seed_generators
@@ -145,7 +145,7 @@ def test_run_products_counts_how_often_a_step_computes_each_product():
     200 steps every 500 steps, twin critics of 12."""
     config = RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
                        actor=actor_config("ilc-san", hidden=(8,)),
-                       td3=TD3Config(batch_size=16, critic_hidden=(12,), policy_delay=2))
+                       training=TrainingConfig(batch_size=16, critic_hidden=(12,), policy_delay=2))
     counts = run_products(config, 3, 1, episode_steps=200)
     forward, grad_input, grad_weight = layer_products(2, 5 * 16, 30, 8)
     assert counts[layer_products(2, 5, 30, 8)[0]] == 1.0  # acting, every step
@@ -163,7 +163,8 @@ def test_run_products_counts_how_often_a_step_computes_each_product():
 def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
     lines = []
     config = RunConfig(task="Pendulum-v1", steps=10, eval_every=10, eval_episodes=1, threads=1,
-                       actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=10))
+                       actor=actor_config("ilc-san", hidden=(8,)),
+                       training=TrainingConfig(start_steps=10, update_after=10))
     Trainer(config, tmp_path / "run", progress=False, log=lines.append).close()
     recorded = json.loads((tmp_path / "run" / "config.json").read_text())["matmul_path"]
     assert recorded["path"] in PATHS and not recorded["compiled"]
@@ -198,7 +199,8 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
         return choose
 
     config = RunConfig(task="Pendulum-v1", steps=20, eval_every=10, eval_episodes=1, threads=1,
-                       actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=5))
+                       actor=actor_config("ilc-san", hidden=(8,)),
+                       training=TrainingConfig(start_steps=10, update_after=5))
     monkeypatch.setattr(training, "choose_matmul_path", measuring("aten"))
     training.train(RunConfig(**{**config.__dict__, "steps": 10}), tmp_path / "run", progress=False, log=print)
     monkeypatch.setattr(training, "choose_matmul_path", measuring("onednn"))
@@ -286,7 +288,7 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
     monkeypatch.setattr(ensemble._EnsembleAffine, "backward", staticmethod(recording_backward))
     config = RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=160, eval_every=160, eval_episodes=2, threads=1,
                        actor=actor_config(preset, hidden=(8,), **options), compile="off", algorithm=algorithm,
-                       td3=TD3Config(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),
+                       training=TrainingConfig(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),
                                      target_actor=target))
     trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)
     try:
@@ -304,7 +306,7 @@ def test_a_proxy_runs_products_are_what_its_declaration_says(monkeypatch):
     def config(target_actor: str) -> RunConfig:
         return RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
                          actor=actor_config("ilc-san", hidden=(8,)),
-                         td3=TD3Config(batch_size=16, critic_hidden=(12,), target_actor=target_actor,
+                         training=TrainingConfig(batch_size=16, critic_hidden=(12,), target_actor=target_actor,
                                        proxy_iterations=3))
 
     plain, proxy = run_products(config("polyak"), 3, 1, 200), run_products(config("proxy"), 3, 1, 200)

@@ -27,7 +27,7 @@ class CareBNDeclaration(Declared):
     Kalman update), and ≈ 8 % more for its recalibration every 5 000 steps (``benchmarks/recalibration.py``)."""
 
     @classmethod
-    def check(cls, task: str, td3) -> None:
-        if td3.batch_size < 2:
+    def check(cls, task: str, training) -> None:
+        if training.batch_size < 2:
             raise UserError(f"--normalization care-bn estimates its statistics from the minibatch: --batch-size must "
-                            f"be at least 2, got {td3.batch_size}")
+                            f"be at least 2, got {training.batch_size}")

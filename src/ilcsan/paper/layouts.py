@@ -44,8 +44,8 @@ class RowSpec:
     preset: str | None
     overrides: Mapping[str, Any] = field(default_factory=dict, hash=False)
     runnable: bool = True
-    td3: Mapping[str, Any] = field(default_factory=dict, hash=False)
-    """TD3 settings of this row (training methods such as ``target_actor``), over the grid's own."""
+    training: Mapping[str, Any] = field(default_factory=dict, hash=False)
+    """Training settings of this row (training methods such as ``target_actor``), over the grid's own."""
     algorithm: str = DEFAULT_ALGORITHM
     """The off-policy algorithm that trains this row's actor (``--algorithm``; :mod:`ilcsan.methods`)."""
     published: tuple[str, str] | None = None

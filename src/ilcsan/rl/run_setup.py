@@ -45,7 +45,7 @@ def set_up(run, resume: bool, progress: bool | None) -> None:
     log(describe_matmul_choice(run.matmul))
     run.agent = build_algorithm(config, state_dim, action_dim, environments.action_scale, environments.action_offset,
                                 environments.episode_steps, matmul)
-    run.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim, min(config.td3.replay_size, config.steps))
+    run.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim, min(config.training.replay_size, config.steps))
     run.normalizer = RunningNormalizer(len(config.seeds), state_dim)
     run.rngs = [np.random.default_rng(seed) for seed in config.seeds]
     run.step, run.wall_seconds = 0, 0.0
