@@ -63,7 +63,7 @@ def main() -> None:
             batch = trainer.agent.to_batch(sample_minibatch(trainer.replay, trainer.normalizer, trainer.rngs,
                                                             config.training))
             update_us = mean_us(lambda: trainer.agent.update(batch), args.updates)
-            path = trainer.matmul["path"]
+            path = trainer.matmul_choice["path"]
         finally:
             trainer.close()
     matmul_us = 1e6 / matmul_floor(args.task, args.preset, (0,), 1, path)  # one step's products, act included

@@ -58,9 +58,9 @@ def measure(actor: str, task: str, matmul: str, steps: int, warmup: int) -> dict
 
 def evaluation_and_path(trainer: Trainer) -> tuple[float, int, str]:
     """:func:`evaluation_seconds` and the matmul path the run chose, in words."""
-    chosen = trainer.matmul["path"]
+    chosen = trainer.matmul_choice["path"]
     if chosen == "bf16":
-        chosen = f"bf16 on {len(trainer.matmul['bf16_products'])} of {trainer.matmul['products']} shapes"
+        chosen = f"bf16 on {len(trainer.matmul_choice['bf16_products'])} of {trainer.matmul_choice['products']} shapes"
     return (*evaluation_seconds(trainer), chosen)
 
 

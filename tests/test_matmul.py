@@ -61,7 +61,7 @@ def test_layer_gradients_agree_on_every_float32_path(path):
     x = torch.randn(2, 4, 6, 7, requires_grad=True)
 
     def grads(kind: str):
-        layer = EnsembleLinear(2, 7, 5, matmul=MatmulPath(kind))
+        layer = EnsembleLinear(2, 7, 5, matmul_path=MatmulPath(kind))
         layer.reset_parameters(seed_generators([0, 1], 0))
         x.grad = None
         (layer(x) ** 2).sum().backward()
@@ -207,14 +207,14 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
     lines: list[str] = []
     trainer = Trainer(config, tmp_path / "run", resume=True, progress=False, log=lines.append)
     try:
-        assert trainer.matmul["path"] == "aten"
+        assert trainer.matmul_choice["path"] == "aten"
         assert any(line.startswith("matmul: aten (kept from the run's start") for line in lines)
     finally:
         trainer.close()
     bf16 = RunConfig(**{**config.__dict__, "matmul": "bf16"})
     trainer = Trainer(bf16, tmp_path / "run", resume=True, progress=False, log=lines.append)
     try:
-        assert trainer.matmul["path"] == "bf16" and "kept" not in trainer.matmul
+        assert trainer.matmul_choice["path"] == "bf16" and "kept" not in trainer.matmul_choice
     finally:
         trainer.close()
 
@@ -238,7 +238,7 @@ def test_a_layer_runs_its_products_on_the_path_it_was_built_with():
     """No process-wide setting: two layers built with different paths in one process keep their own."""
     generator = torch.Generator().manual_seed(5)
     x = torch.randn(1, 40, 30, generator=generator)
-    exact, rounded = (EnsembleLinear(1, 30, 20, matmul=MatmulPath(kind)) for kind in ("aten", "bf16"))
+    exact, rounded = (EnsembleLinear(1, 30, 20, matmul_path=MatmulPath(kind)) for kind in ("aten", "bf16"))
     for layer in (exact, rounded):
         layer.reset_parameters(seed_generators([0], 0))
         reference = torch.baddbmm(exact.bias.unsqueeze(1).double(), x.double(), exact.weight.double().transpose(1, 2))

@@ -108,8 +108,8 @@ def test_compiled_update_program_equals_the_eager_update(preset, path):
     config = actor_config(preset, **small[preset])
     training = TrainingConfig(critic_hidden=(16, 16))
     task = TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5])
-    eager = TD3(config, training, task, (7, 8), ComputeSettings(matmul=MatmulPath(path)))
-    compiled = TD3(config, training, task, (7, 8), ComputeSettings(compile=True, matmul=MatmulPath(path)))
+    eager = TD3(config, training, task, (7, 8), ComputeSettings(matmul_path=MatmulPath(path)))
+    compiled = TD3(config, training, task, (7, 8), ComputeSettings(compile=True, matmul_path=MatmulPath(path)))
     assert eager.critic_step.__func__ is TD3._critic_step  # the same function, uncompiled
     rng = np.random.default_rng(1)
     batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
@@ -125,7 +125,7 @@ def test_compiled_update_program_equals_the_eager_update(preset, path):
 
 def layer_paths(agent) -> set[str]:
     """The matmul kinds of every synaptic layer of an agent's networks."""
-    return {module.matmul.kind for network in (agent.actor, agent.critic, agent.actor_target, agent.critic_target)
+    return {module.matmul_path.kind for network in (agent.actor, agent.critic, agent.actor_target, agent.critic_target)
             for module in network.modules() if hasattr(module, "matmul")}
 
 

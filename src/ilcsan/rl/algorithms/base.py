@@ -75,14 +75,14 @@ class OffPolicyAlgorithm:
 
     def __init__(self, actor_config: ActorConfig, training: TrainingProtocol, task: TaskSpace, seeds: Sequence[int],
                  compute: ComputeSettings = EAGER_ON_CPU):
-        self.config, self.training, self.task = actor_config, training, task
+        self.actor_config, self.training, self.task = actor_config, training, task
         self.compute, self.seeds = compute, list(seeds)
         self.device, self.compiled = compute.device, compute.compile
         self.state_dim, self.action_dim = task.state_dim, task.action_dim
         self.action_scale, self.action_offset = task.action_scale, task.action_offset
         self.actor = self._build_actor(self.readouts)
         self.critic = Critics(task.state_dim, task.action_dim, training.critic_hidden, self.seeds, self.critics,
-                              compute.matmul).to(self.device)
+                              compute.matmul_path).to(self.device)
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
         self.critic_names = [name for name, _ in self.critic.named_parameters()]
@@ -108,12 +108,12 @@ class OffPolicyAlgorithm:
         padding = readouts - 1
         scale = np.concatenate([self.action_scale, np.ones(padding * self.action_dim)])
         offset = np.concatenate([self.action_offset, np.zeros(padding * self.action_dim)])
-        return build_actor(self.config, self.state_dim, readouts * self.action_dim, scale, offset, self.seeds,
-                           engine=self.compute.engine, matmul=self.compute.matmul).to(self.device)
+        return build_actor(self.actor_config, self.state_dim, readouts * self.action_dim, scale, offset, self.seeds,
+                           engine=self.compute.engine, matmul_path=self.compute.matmul_path).to(self.device)
 
     def method_context(self) -> MethodContext:
         """What a training method is built from: this agent's actor, settings, task and seeds."""
-        return MethodContext(self.actor, self.config, self.training, self.task, tuple(self.seeds), self.compute)
+        return MethodContext(self.actor, self.actor_config, self.training, self.task, tuple(self.seeds), self.compute)
 
     def methods(self) -> list[Method]:
         """The training methods this agent runs (every algorithm: the actor's normalisation and the loss terms)."""

@@ -144,7 +144,7 @@ class SAC(OffPolicyAlgorithm):
         grads, (actor_loss, (log_prob, record)) = value_and_grads(
             self.actor_loss, tensors["actor"], tensors["actor_buffers"], tensors["critic"], alpha, batch, has_aux=True)
         adam_(tensors["actor"], self.actor_methods.gradients(grads), *tensors["actor_adam"],
-              lr=self.config.learning_rate)
+              lr=self.actor_config.learning_rate)
         self.actor_methods.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         # ∂/∂log α of −mean_b log α (log π + H̄), per seed
         entropy_grads = [-(log_prob + self.target_entropy).mean(dim=-1)]

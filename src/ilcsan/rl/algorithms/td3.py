@@ -159,7 +159,7 @@ class TD3(OffPolicyAlgorithm):
 
     def _delayed_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
         critic_loss = self._critic_step(tensors, batch)
-        lr = self.config.learning_rate
+        lr = self.actor_config.learning_rate
         (grads, method_grads), (actor_loss, record) = value_and_grads(
             self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], tensors["actor_buffers"],
             batch, wrt=(0, 1), has_aux=True)

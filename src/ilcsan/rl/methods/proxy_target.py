@@ -39,11 +39,11 @@ PROXY_SALT = 4
 
 
 def build_proxy(state_dim: int, action_dim: int, action_scale: Sequence[float], action_offset: Sequence[float],
-                seeds: Sequence[int], matmul: MatmulPath = DEFAULT_MATMUL) -> DeepActor:
+                seeds: Sequence[int], matmul_path: MatmulPath = DEFAULT_MATMUL) -> DeepActor:
     """K proxy actors (N, 512, ReLU, 512, ReLU, M, tanh·scale + offset), seed k's from its own generator."""
     config = actor_config("dan", hidden=PROXY_HIDDEN)
     return DeepActor(config, state_dim, action_dim, action_scale, action_offset,
-                     [seed * 7919 + PROXY_SALT for seed in seeds], matmul=matmul)
+                     [seed * 7919 + PROXY_SALT for seed in seeds], matmul_path=matmul_path)
 
 
 class ProxyTarget(TargetActor):
@@ -55,7 +55,7 @@ class ProxyTarget(TargetActor):
         training = context.training
         task, compute = context.task, context.compute
         proxy = build_proxy(task.state_dim, task.action_dim, task.action_scale, task.action_offset, context.seeds,
-                            compute.matmul).to(compute.device)
+                            compute.matmul_path).to(compute.device)
         self.module, self.iterations, self.lr = proxy, training.proxy_iterations, training.proxy_lr
         self.adam = Adam(proxy, training.proxy_lr)
         self.names = self.adam.names
