@@ -295,7 +295,7 @@ def test_grid_runs_locally_survives_an_interruption_and_reports(tmp_path, monkey
     log = (grid.root / "logs" / "Pendulum-v1--ilc--s0.log").read_text()
     assert "resumed" in log and "at step 150" in log and "kept from the run's start" in log
     recorded = json.loads((partial.directory / "config.json").read_text())["matmul_path"]
-    monkeypatch.setattr("ilcsan.rl.training.choose_matmul_path",  # the uninterrupted run on the same path
+    monkeypatch.setattr("ilcsan.rl.run_setup.choose_matmul_path",  # the uninterrupted run on the same path
                         lambda *_: recorded_matmul_path(recorded, partial.config.matmul))
     train(partial.config, tmp_path / "straight", progress=False, **QUIET)
     assert [row["eval_return_mean"] for row in metrics(partial.directory)] == \

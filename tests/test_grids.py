@@ -68,11 +68,11 @@ def test_the_algorithms_grid_trains_one_actor_by_each_algorithm_on_the_beyond_gr
 
 def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> None:
     row = {"slug": "proxy", "preset": "ilc-san", "training": {"target_actor": "proxy", "proxy_iterations": 1,
-                                                        "proxy_lr": 3e-3}}
+                                                             "proxy_lr": 3e-3}}
     spec = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [row]})
     assert spec.rows[0].training == {"target_actor": "proxy", "proxy_iterations": 1, "proxy_lr": 3e-3}
     for training, message in (({"target_actor": "ann"}, "target-actor"), ({"proxy_iterations": 0}, "at least 1"),
-                         ({"gamma": 0.9}, "unknown key"), ({"proxy_lr": "fast"}, "td3")):
+                              ({"gamma": 0.9}, "unknown key"), ({"proxy_lr": "fast"}, "training")):
         with pytest.raises(UserError, match=message):
             grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{**row, "training": training}]})
     with pytest.raises(UserError, match="--target-actor proxy is a training method for spiking actors"):
