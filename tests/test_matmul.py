@@ -188,6 +188,7 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
     resume, it measures anew."""
     if not onednn_available():
         pytest.skip("this torch has no oneDNN")
+    import ilcsan.rl.run_setup as run_setup
     import ilcsan.rl.training as training
     from ilcsan.rl.matmul_choice import choose_matmul_path
 
@@ -201,9 +202,9 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
     config = RunConfig(task="Pendulum-v1", steps=20, eval_every=10, eval_episodes=1, threads=1,
                        actor=actor_config("ilc-san", hidden=(8,)),
                        training=TrainingConfig(start_steps=10, update_after=5))
-    monkeypatch.setattr(training, "choose_matmul_path", measuring("aten"))
+    monkeypatch.setattr(run_setup, "choose_matmul_path", measuring("aten"))
     training.train(RunConfig(**{**config.__dict__, "steps": 10}), tmp_path / "run", progress=False, log=print)
-    monkeypatch.setattr(training, "choose_matmul_path", measuring("onednn"))
+    monkeypatch.setattr(run_setup, "choose_matmul_path", measuring("onednn"))
     lines: list[str] = []
     trainer = Trainer(config, tmp_path / "run", resume=True, progress=False, log=lines.append)
     try:

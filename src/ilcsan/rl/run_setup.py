@@ -56,7 +56,8 @@ def set_up(run, resume: bool, progress: bool | None) -> None:
         run.checkpoints.restore(run, config, state_dim, action_dim)
     else:
         start(run)
-    run.checkpoints.record_provenance(provenance.collect(run.step, config.matmul, run.matmul_choice["path"], config.device))
+    run.checkpoints.record_provenance(provenance.collect(run.step, config.matmul, run.matmul_choice["path"],
+                                                         config.device))
     run.callbacks = Callbacks(TensorBoardLog([directory.tensorboard_folder() for directory in run.directories],
                                              run.step),
                               ProgressReport(sys.stderr.isatty() if progress is None else progress, log))
