@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from speed import matmul_floor  # noqa: E402
 
-from ilcsan.config import RunConfig, TD3Config, actor_config  # noqa: E402
+from ilcsan.config import RunConfig, TrainingConfig, actor_config  # noqa: E402
 from ilcsan.rl.training import Trainer, sample_minibatch  # noqa: E402
 
 
@@ -39,7 +39,7 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=200, help="timed updates")
     args = parser.parse_args()
     config = RunConfig(task=args.task, seeds=(0,), steps=10**7, eval_every=10**9, eval_episodes=1, threads=1,
-                       actor=actor_config(args.preset), td3=TD3Config(start_steps=0, update_after=100),
+                       actor=actor_config(args.preset), training=TrainingConfig(start_steps=0, update_after=100),
                        compile="on", matmul=args.matmul)
     with tempfile.TemporaryDirectory() as folder:
         trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
@@ -59,11 +59,11 @@ def main() -> None:
 
             env_us = mean_us(env_step, 500)
             sample_us = mean_us(lambda: trainer.agent.to_batch(sample_minibatch(trainer.replay, trainer.normalizer,
-                                                                                trainer.rngs, config.td3)), 500)
+                                                                                trainer.rngs, config.training)), 500)
             batch = trainer.agent.to_batch(sample_minibatch(trainer.replay, trainer.normalizer, trainer.rngs,
-                                                            config.td3))
+                                                            config.training))
             update_us = mean_us(lambda: trainer.agent.update(batch), args.updates)
-            path = trainer.matmul["path"]
+            path = trainer.matmul_choice["path"]
         finally:
             trainer.close()
     matmul_us = 1e6 / matmul_floor(args.task, args.preset, (0,), 1, path)  # one step's products, act included

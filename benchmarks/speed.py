@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from ilcsan.compute.process import flush_denormals
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.experiments.estimate import cpu_field
 from ilcsan.rl.training import Trainer
 
@@ -81,14 +81,14 @@ def actor_forward_flops(preset: str, state_dim: int, action_dim: int, batch: int
     return total
 
 
-def td3_step_flops(preset: str, state_dim: int, action_dim: int, td3: TD3Config) -> float:
+def td3_step_flops(preset: str, state_dim: int, action_dim: int, training: TrainingConfig) -> float:
     """Matmul FLOPs of one environment step of TD3: one action, one critic update, half an actor update."""
-    batch = td3.batch_size
-    critic_sizes = [state_dim + action_dim, *td3.critic_hidden, 1]
+    batch = training.batch_size
+    critic_sizes = [state_dim + action_dim, *training.critic_hidden, 1]
     critic = 2 * sum(2.0 * batch * a * b for a, b in zip(critic_sizes[:-1], critic_sizes[1:], strict=True))
     actor = actor_forward_flops(preset, state_dim, action_dim, batch)
     update = actor + critic + 3 * critic  # target actor, target critics, critic forward + backward
-    update += (3 * actor + 3 * critic) / td3.policy_delay  # actor forward + backward through the critic
+    update += (3 * actor + 3 * critic) / training.policy_delay  # actor forward + backward through the critic
     return update + actor_forward_flops(preset, state_dim, action_dim, 1)
 
 
@@ -123,7 +123,7 @@ def matmul_floor(task: str, preset: str, seeds: tuple[int, ...], threads: int, p
     state_dim, action_dim = TASK_SIZES[task]
     torch.set_num_threads(threads)
     k = len(seeds)
-    agent = TD3(actor_config(preset), TD3Config(), TaskSpace(state_dim, action_dim, [1.0] * action_dim,
+    agent = TD3(actor_config(preset), TrainingConfig(), TaskSpace(state_dim, action_dim, [1.0] * action_dim,
                                                             [0.0] * action_dim), seeds)
     generator = torch.Generator().manual_seed(0)
     batch = {"obs": torch.randn(k, 100, state_dim, generator=generator),
@@ -169,14 +169,14 @@ def best_float32_floor(task: str, preset: str, seeds: tuple[int, ...], threads: 
 
 def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], threads: int, steps: int,
                    warmup: int, compiled: bool = True, matmul: str = "float32", algorithm: str = "td3",
-                   normalization: str = "none", **td3_options) -> float:
-    """Environment steps per second per seed, including updates, after ``warmup`` steps; ``td3_options`` choose a
+                   normalization: str = "none", **training_options) -> float:
+    """Environment steps per second per seed, including updates, after ``warmup`` steps; ``training_options`` choose a
     training method (e.g. ``target_actor="proxy"``), ``algorithm`` the off-policy algorithm, ``normalization`` the
     actor's (``care-bn``)."""
     compile_mode = "on" if engine == "fast" and compiled else "off"
-    td3 = TD3Config(start_steps=0, update_after=100, update_every=50, **td3_options)
+    training = TrainingConfig(start_steps=0, update_after=100, update_every=50, **training_options)
     config = RunConfig(task=task, seeds=seeds, steps=warmup + steps + 1, eval_every=10**9, eval_episodes=1,
-                       actor=actor_config(preset, normalization=normalization), td3=td3, engine=engine,
+                       actor=actor_config(preset, normalization=normalization), training=training, engine=engine,
                        threads=threads, compile=compile_mode, matmul=matmul, algorithm=algorithm)
     return 1.0 / seconds_per_training_step(config, warmup, steps)[0]
 
@@ -287,7 +287,7 @@ def act_latency_us(task: str, calls: int = 3000) -> float:
     torch.set_num_threads(1)
     state_dim, action_dim = TASK_SIZES[task]
     task_space = TaskSpace(state_dim, action_dim, [1.0] * action_dim, [0.0] * action_dim)
-    agent = TD3(actor_config("ilc-san"), TD3Config(), task_space, (0,), ComputeSettings(compile=True))
+    agent = TD3(actor_config("ilc-san"), TrainingConfig(), task_space, (0,), ComputeSettings(compile=True))
     state = np.random.default_rng(0).normal(size=(1, state_dim)).astype(np.float32)
     return median_call_us(lambda: agent.act(state), calls)
 
@@ -305,7 +305,7 @@ def peak_bound(task: str, preset: str, peak_gflops: float) -> float:
     """Steps/s if every matrix product of a step ran at the CPU's float32 GEMM peak (:func:`gemm_peak`) and nothing
     else cost anything: the ceiling of any float32 engine computing these products, whatever its matmul path."""
     state_dim, action_dim = TASK_SIZES[task]
-    return peak_gflops * 1e9 / td3_step_flops(preset, state_dim, action_dim, TD3Config())
+    return peak_gflops * 1e9 / td3_step_flops(preset, state_dim, action_dim, TrainingConfig())
 
 
 def task_table(task: str, threads: int, steps: int, warmup: int, emit, peak_gflops: float) -> dict[str, float]:

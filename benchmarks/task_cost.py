@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from speed import cpu_model, seconds_per_training_step
 
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.paper.layouts import TABLES
 from ilcsan.rl.evaluation import replay_diagnostics
 from ilcsan.rl.training import Trainer
@@ -47,10 +47,10 @@ EVAL_EPISODES = 10
 def measure(actor: str, task: str, matmul: str, steps: int, warmup: int) -> dict[str, float | str]:
     """One actor preset, task and precision: seconds per training step, per evaluation, and the matmul choice."""
     torch.set_num_threads(1)
-    td3 = TD3Config(start_steps=0, update_after=100)
+    training = TrainingConfig(start_steps=0, update_after=100)
     config = RunConfig(task=task, seeds=(0,), steps=warmup + steps + 1, eval_every=EVAL_EVERY,
-                       eval_episodes=EVAL_EPISODES, actor=actor_config(actor), td3=td3, threads=1, compile="on",
-                       matmul=matmul)
+                       eval_episodes=EVAL_EPISODES, actor=actor_config(actor), training=training, threads=1,
+                       compile="on", matmul=matmul)
     train, (evaluation, limit, chosen) = seconds_per_training_step(config, warmup, steps, evaluation_and_path)
     return {"actor": actor, "task": task, "matmul": matmul, "train": train, "evaluation": evaluation,
             "limit": limit, "path": chosen}
@@ -58,9 +58,9 @@ def measure(actor: str, task: str, matmul: str, steps: int, warmup: int) -> dict
 
 def evaluation_and_path(trainer: Trainer) -> tuple[float, int, str]:
     """:func:`evaluation_seconds` and the matmul path the run chose, in words."""
-    chosen = trainer.matmul["path"]
+    chosen = trainer.matmul_choice["path"]
     if chosen == "bf16":
-        chosen = f"bf16 on {len(trainer.matmul['bf16_products'])} of {trainer.matmul['products']} shapes"
+        chosen = f"bf16 on {len(trainer.matmul_choice['bf16_products'])} of {trainer.matmul_choice['products']} shapes"
     return (*evaluation_seconds(trainer), chosen)
 
 

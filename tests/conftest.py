@@ -25,12 +25,13 @@ def _deterministic_torch():
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
     """A tiny ILC-SAN run on Pendulum (300 steps): a real run directory with policy and checkpoint."""
-    from ilcsan.config import RunConfig, TD3Config, actor_config
+    from ilcsan.config import RunConfig, TrainingConfig, actor_config
     from ilcsan.rl.training import train
 
     out = tmp_path_factory.mktemp("runs") / "pendulum"
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=300, eval_every=150, eval_episodes=1,
                        actor=actor_config("ilc-san", hidden=(16, 16)),
-                       td3=TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16), threads=1)
+                       training=TrainingConfig(start_steps=150, update_after=100, update_every=25, batch_size=16),
+                       threads=1)
     train(config, out, progress=False, log=lambda *_: None)
     return out

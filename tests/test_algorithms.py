@@ -14,7 +14,7 @@ from torch.distributions.transforms import TanhTransform
 
 import ilcsan
 import ilcsan.errors
-from ilcsan.config import PRESETS, RunConfig, TD3Config, actor_config
+from ilcsan.config import PRESETS, RunConfig, TrainingConfig, actor_config
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
 from ilcsan.rl.training import train
@@ -24,8 +24,8 @@ SMALL = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timest
 SCALE, OFFSET = [2.0, 1.0], [0.0, 0.5]
 
 
-def _agent(cls, preset="ilc-san", seeds=(0,), td3=None, **options):
-    return cls(actor_config(preset, **SMALL[preset]), td3 or TD3Config(critic_hidden=(16, 16)),
+def _agent(cls, preset="ilc-san", seeds=(0,), training=None, **options):
+    return cls(actor_config(preset, **SMALL[preset]), training or TrainingConfig(critic_hidden=(16, 16)),
                TaskSpace(3, 2, SCALE, OFFSET), seeds, ComputeSettings(**options))
 
 
@@ -57,8 +57,8 @@ def test_ddpg_steps_the_actor_and_targets_at_every_update():
         losses = agent.update(_batch(1, seed=update))
         assert losses["actor_loss"] is not None
     assert all(not torch.equal(a, b) for a, b in zip(before, agent.actor_target.parameters(), strict=True))
-    td3 = _agent(TD3, "dan")
-    assert [td3.update(_batch(1, seed=u))["actor_loss"] is None for u in range(4)] == [True, False, True, False]
+    agent = _agent(TD3, "dan")
+    assert [agent.update(_batch(1, seed=u))["actor_loss"] is None for u in range(4)] == [True, False, True, False]
 
 
 # -------------------------------------------------------------------------------------------- SAC
@@ -92,8 +92,8 @@ def test_sac_target_values_subtract_the_entropy_term():
 def test_sac_entropy_coefficient_moves_toward_the_target_entropy():
     """Adam's first step moves log α by lr against the sign of ∂/∂log α = −mean(log π(ã|s) + H̄), H̄ = −M, with ã the
     update's own sample (the generators' second draw, taken before the actor's step)."""
-    td3 = TD3Config(critic_hidden=(16, 16), entropy_lr=0.01, initial_entropy_coefficient=0.3)
-    agent = _agent(SAC, seeds=(0, 1), td3=td3)
+    training = TrainingConfig(critic_hidden=(16, 16), entropy_lr=0.01, initial_entropy_coefficient=0.3)
+    agent = _agent(SAC, seeds=(0, 1), training=training)
     batch = _batch(2)
     generators = [copy.deepcopy(g.get_state()) for g in agent.noise_generators]
     actor = copy.deepcopy(agent.actor)
@@ -147,7 +147,7 @@ def test_every_preset_trains_and_deploys_with_ddpg_and_sac(cls, preset):
     (spiking presets through their surrogate gradients), the losses are finite, and the deployed actor gives one
     action per state inside the action bounds."""
     small = SMALL.get(preset, SMALL["ilc-san"])
-    agent = cls(actor_config(preset, **small), TD3Config(critic_hidden=(16, 16)), TaskSpace(3, 2, SCALE, OFFSET),
+    agent = cls(actor_config(preset, **small), TrainingConfig(critic_hidden=(16, 16)), TaskSpace(3, 2, SCALE, OFFSET),
                 (0, 1))
     before = [parameter.clone() for parameter in agent.actor.parameters()]
     for update in range(2):
@@ -167,7 +167,7 @@ def test_every_preset_trains_and_deploys_with_ddpg_and_sac(cls, preset):
 def _run(algorithm: str, steps: int = 400, **options) -> RunConfig:
     return RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=steps, eval_every=200, eval_episodes=2,
                      actor=actor_config("ilc-san", **SMALL["ilc-san"]), algorithm=algorithm, threads=1,
-                     compile="off", td3=TD3Config(start_steps=100, update_after=100, update_every=25,
+                     compile="off", training=TrainingConfig(start_steps=100, update_after=100, update_every=25,
                                                   critic_hidden=(16, 16)), **options)
 
 
@@ -231,8 +231,8 @@ def test_the_old_name_of_the_polyak_target_still_works(tmp_path, capsys):
     from ilcsan.analysis.collect import configuration_key
     from ilcsan.cli import main
 
-    assert TD3Config(target_actor="spiking").target_actor == "polyak"
-    assert TD3Config.from_dict({**TD3Config().to_dict(), "target_actor": "spiking"}) == TD3Config()
+    assert TrainingConfig(target_actor="spiking").target_actor == "polyak"
+    assert TrainingConfig.from_dict({**TrainingConfig().to_dict(), "target_actor": "spiking"}) == TrainingConfig()
     actor = actor_config("ilc-san").to_dict()
     assert configuration_key(actor, {"target_actor": "spiking"}) == configuration_key(actor, {})
     assert configuration_key(actor, {}, "sac") != configuration_key(actor, {})

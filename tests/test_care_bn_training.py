@@ -10,7 +10,7 @@ import torch
 from test_care_bn import SPIKING_PRESETS, randomise_running_statistics
 
 import ilcsan.rl.methods.care_bn as care_bn
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta
 from ilcsan.deploy.policy import load
@@ -24,12 +24,12 @@ from ilcsan.snn.normalization import kalman_update
 from ilcsan.snn.output import PassOptions
 
 SMALL = dict(hidden=(16,), population_in=4, population_out=4, timesteps=3)
-CRITIC = TD3Config(critic_hidden=(16, 16))
+CRITIC = TrainingConfig(critic_hidden=(16, 16))
 
 
-def _agent(cls=TD3, preset="ilc-san", seeds=(0, 1), td3=CRITIC, **options):
+def _agent(cls=TD3, preset="ilc-san", seeds=(0, 1), training=CRITIC, **options):
     config = actor_config(preset, normalization="care-bn", **SMALL)
-    return cls(config, td3, TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), seeds, ComputeSettings(**options))
+    return cls(config, training, TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), seeds, ComputeSettings(**options))
 
 
 def _batch(agent, size: int = 16, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -86,7 +86,7 @@ def test_an_actor_step_moves_the_running_statistics_by_the_kalman_update_of_its_
     randomise_running_statistics(agent.actor)
     batch = _batch(agent)
     before = _running(agent.actor)
-    for _ in range(cls.policy_delay(agent.td3) - 1):
+    for _ in range(cls.policy_delay(agent.training) - 1):
         assert agent.update(batch)["actor_loss"] is None
     assert all(torch.equal(now, then) for now, then in zip(_running(agent.actor), before, strict=True))
     with torch.no_grad():
@@ -107,7 +107,7 @@ def test_an_actor_step_moves_the_running_statistics_by_the_kalman_update_of_its_
 def test_the_target_actor_follows_the_running_statistics_at_its_steps(cls):
     """b' ← b' + τ (b − b') for μ̂ and σ̂², with b the online actor's after its Kalman update, at every actor step
     (TD3: the second update; DDPG: each); P_μ, P_σ² of the target are never read and stay."""
-    agent = _agent(cls, td3=TD3Config(critic_hidden=(16, 16), tau=0.25))
+    agent = _agent(cls, training=TrainingConfig(critic_hidden=(16, 16), tau=0.25))
     randomise_running_statistics(agent.actor)
     batch = _batch(agent)
     target_before = _running(agent.actor_target)
@@ -145,18 +145,19 @@ def test_the_compiled_update_equals_the_eager_one(cls):
     assert all(program.direct for program in programs)
 
 
-@pytest.mark.parametrize("td3", [TD3Config(critic_hidden=(16, 16), exploration="noisy", noisy_return_reference=100.0),
-                                 TD3Config(critic_hidden=(16, 16), target_actor="proxy", proxy_iterations=1)],
+@pytest.mark.parametrize("training", [
+    TrainingConfig(critic_hidden=(16, 16), exploration="noisy", noisy_return_reference=100.0),
+    TrainingConfig(critic_hidden=(16, 16), target_actor="proxy", proxy_iterations=1)],
                          ids=["noisysan", "proxy-target"])
-def test_care_bn_trains_beside_noisysan_and_proxy_target(td3):
+def test_care_bn_trains_beside_noisysan_and_proxy_target(training):
     """NoisySAN's noise enters after the normalisation and its loss pass records batch statistics; Proxy Target's
     proxy imitates the actor as it acts: both run, and the actor step moves the running statistics."""
-    agent = _agent(TD3, td3=td3)
+    agent = _agent(TD3, training=training)
     before = _running(agent.actor)
     rng = np.random.default_rng(0)
     for seed in range(2):
         batch = _batch(agent, seed=seed)
-        if td3.target_actor == "proxy":
+        if training.target_actor == "proxy":
             batch["proxy_obs"] = torch.as_tensor(rng.normal(size=(1, 2, 16, 3)), dtype=torch.float32)
         agent.update(batch)
     assert not any(torch.equal(now, then) for now, then in zip(_running(agent.actor), before, strict=True))
@@ -165,12 +166,12 @@ def test_care_bn_trains_beside_noisysan_and_proxy_target(td3):
 
 
 # --------------------------------------------------------------------------------------- runs
-def _run(algorithm: str = "td3", steps: int = 450, **td3_options) -> RunConfig:
-    td3 = TD3Config(**{**dict(start_steps=150, update_after=100, update_every=25, batch_size=16,
-                              critic_hidden=(16, 16)), **td3_options})
+def _run(algorithm: str = "td3", steps: int = 450, **training_options) -> RunConfig:
+    training = TrainingConfig(**{**dict(start_steps=150, update_after=100, update_every=25, batch_size=16,
+                              critic_hidden=(16, 16)), **training_options})
     return RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=steps, eval_every=150, eval_episodes=1,
                      actor=actor_config("ilc-san", normalization="care-bn", hidden=(16, 16)), algorithm=algorithm,
-                     td3=td3, threads=1, compile="off")
+                     training=training, threads=1, compile="off")
 
 
 @pytest.fixture

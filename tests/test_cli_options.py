@@ -10,8 +10,8 @@ import pytest
 
 from ilcsan.cli import build_parser, main
 from ilcsan.cli.options import actor_switches
-from ilcsan.cli.train import RUN_SETTINGS, build_run_config, td3_settings
-from ilcsan.config import ActorConfig, RunConfig, TD3Config, actor_config, check_settings, flag_of
+from ilcsan.cli.train import RUN_SETTINGS, build_run_config, training_settings
+from ilcsan.config import ActorConfig, RunConfig, TrainingConfig, actor_config, check_settings, flag_of
 from ilcsan.errors import UserError
 from ilcsan.settings import help_text
 
@@ -46,8 +46,9 @@ def test_every_actor_field_has_help_and_a_switch_in_train_help(field, train_help
         assert actions[flag].help.replace("%%", "%") in shown
 
 
-@pytest.mark.parametrize("config_class, names", [(RunConfig, RUN_SETTINGS + ("steps",)), (TD3Config, td3_settings())])
-def test_run_and_td3_options_show_the_configs_help_and_default(config_class, names, train_help):
+@pytest.mark.parametrize("config_class, names", [(RunConfig, RUN_SETTINGS + ("steps",)),
+                                                 (TrainingConfig, training_settings())])
+def test_run_and_training_options_show_the_configs_help_and_default(config_class, names, train_help):
     text = train_help
     for field in dataclasses.fields(config_class):
         if field.name in names:
@@ -86,8 +87,9 @@ def test_hidden_switches_set_the_widths():
 
 
 @pytest.mark.parametrize("config_class, names, target", [(RunConfig, RUN_SETTINGS, lambda config: config),
-                                                         (TD3Config, td3_settings(), lambda config: config.td3)])
-def test_each_run_and_td3_option_sets_its_field(config_class, names, target):
+                                                         (TrainingConfig, training_settings(),
+                                                          lambda config: config.training)])
+def test_each_run_and_training_option_sets_its_field(config_class, names, target):
     for field in dataclasses.fields(config_class):
         if field.name in names and field.name != "device":
             text, expected = _sample_value(field)
@@ -108,7 +110,7 @@ def test_actor_switch_list_has_no_duplicates_and_is_generated():
     (lambda: actor_config(timesteps=0), "--timesteps"),
     (lambda: check_settings(RunConfig(engine="turbo")), "--engine"),
     (lambda: check_settings(RunConfig(matmul="fp8")), "--matmul"),
-    (lambda: check_settings(TD3Config(batch_size=0)), "--batch-size"),
+    (lambda: check_settings(TrainingConfig(batch_size=0)), "--batch-size"),
 ])
 def test_settings_are_checked_against_their_metadata(make, flag):
     with pytest.raises(UserError, match=flag):
@@ -174,9 +176,9 @@ def test_demo_trains_the_documented_run_and_compares_with_random(monkeypatch, tm
 LIKED = RunConfig(task="Pendulum-v1", steps=300, eval_every=150, eval_episodes=1, label="mine", table="intra",
                   row="self", checkpoint_minutes=0.0,
                   actor=actor_config("ilc-san", hidden=(24, 16), intra="self", decoder="max", alpha_v_li=0.75),
-                  td3=TD3Config(start_steps=150, update_after=100, batch_size=16, gamma=0.98))
-"""A run with switches off the preset (widths the switches cannot express among them), a TD3 setting that has no flag
-(γ), a label and a grid's tags."""
+                  training=TrainingConfig(start_steps=150, update_after=100, batch_size=16, gamma=0.98))
+"""A run with switches off the preset (widths the switches cannot express among them), a training setting that has no
+flag (γ), a label and a grid's tags."""
 
 
 @pytest.fixture
@@ -206,7 +208,7 @@ def test_each_flag_given_with_like_changes_that_one_setting(liked_run):
     expected = dataclasses.replace(
         LIKED, table=None, row=None, steps=1_000_000,  # the default's value given explicitly still counts
         actor=dataclasses.replace(LIKED.actor, intra="none", hidden=(32, 32)),
-        td3=dataclasses.replace(LIKED.td3, batch_size=100))
+        training=dataclasses.replace(LIKED.training, batch_size=100))
     assert changed == expected
 
 

@@ -11,7 +11,7 @@ import torch
 
 from ilcsan.actors import build_actor
 from ilcsan.analysis.report import write_report
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.rl.training import Trainer
 from ilcsan.runs.directory import DIAGNOSTICS
 from ilcsan.snn.diagnostics import (
@@ -124,7 +124,7 @@ def test_training_reports_the_diagnostics_and_names_a_stuck_seed_once(tmp_path):
     ~0), seed 9's is left as it is: after the random phase seed 8 is reported stuck once, seed 9 never."""
     config = RunConfig(task="Pendulum-v1", seeds=(8, 9), steps=1000, eval_every=200, eval_episodes=2,
                        actor=actor_config("ilc-san", hidden=(32, 32), learning_rate=1e-12),
-                       td3=TD3Config(start_steps=200, update_after=200, update_every=50, batch_size=32),
+                       training=TrainingConfig(start_steps=200, update_after=200, update_every=50, batch_size=32),
                        threads=1, compile="off")
     lines: list[str] = []
     trainer = Trainer(config, tmp_path / "run", progress=False, log=lines.append)

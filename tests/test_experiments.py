@@ -40,7 +40,7 @@ from ilcsan.paper.layouts import TABLES
 from ilcsan.rl.matmul_choice import recorded_matmul_path
 from ilcsan.rl.training import Trainer, train
 
-TINY_TD3 = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
+TINY_TRAINING = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
 TINY_GRID = """
 name = "tiny"
 caption = "Two small actors on two small tasks"
@@ -73,7 +73,7 @@ def grid_file(tmp_path: Path) -> Path:
 
 def tiny_grid(tmp_path: Path, steps: int | None = None, **options):
     spec = load_grid(grid_file(tmp_path))
-    return expand_grid(spec, tmp_path / "out", GridOptions(run={"steps": steps}, td3=TINY_TD3, **options))
+    return expand_grid(spec, tmp_path / "out", GridOptions(run={"steps": steps}, training=TINY_TRAINING, **options))
 
 
 def metrics(path: Path) -> list[dict[str, str]]:
@@ -105,7 +105,7 @@ def test_paper_table_expands_into_tagged_runs(tmp_path):
     grid = expand_grid(TABLES["intra"], tmp_path, GridOptions(seeds=(0, 2), tasks=("hopper", "Ant"),
                                                              rows=("self", "intra"),
                                                              run={"steps": 5000, "matmul": "bf16"},
-                                                             td3={"start_steps": 100}))
+                                                             training={"start_steps": 100}))
     assert [run.key for run in grid.runs][:4] == ["Hopper/self/seed0", "Hopper/self/seed2", "Hopper/intra/seed0",
                                                   "Hopper/intra/seed2"]
     assert len(grid.runs) == 2 * 2 * 2 and grid.total_steps == 8 * 5000
@@ -113,7 +113,7 @@ def test_paper_table_expands_into_tagged_runs(tmp_path):
     assert run.directory == tmp_path.absolute() / "intra" / "Hopper" / "self" / "seed0"
     assert (run.config.table, run.config.row, run.config.label) == ("intra", "self", "I_self")
     assert run.config.seeds == (0,) and run.config.threads == 1 and run.config.actor.intra == "self"
-    assert run.config.td3.start_steps == 100 and run.config.steps == 5000 and run.config.matmul == "bf16"
+    assert run.config.training.start_steps == 100 and run.config.steps == 5000 and run.config.matmul == "bf16"
     assert run.config.eval_every == 10_000 and run.config.eval_episodes == 10  # the paper's protocol
     assert grid.report_table == TABLES["intra"] or grid.report_table == "intra"
 
@@ -142,7 +142,7 @@ def test_a_tables_rows_run_on_tasks_outside_the_table(tmp_path):
     (GridOptions(tasks=("Pong",)), "unknown task 'Pong'"),
     (GridOptions(tasks=("CartPole-v1",)), "Discrete action space"),
     (GridOptions(rows=("nope",)), "no row 'nope'"),
-    (GridOptions(td3={"warmup": 3}), "unknown TD3 setting"),
+    (GridOptions(training={"warmup": 3}), "unknown training setting"),
     (GridOptions(run={"stesp": 3}), "unknown run setting 'stesp'"),
     (GridOptions(run={"eval_episodes": 0}), "--eval-episodes must be at least 1"),
 ])
@@ -295,7 +295,7 @@ def test_grid_runs_locally_survives_an_interruption_and_reports(tmp_path, monkey
     log = (grid.root / "logs" / "Pendulum-v1--ilc--s0.log").read_text()
     assert "resumed" in log and "at step 150" in log and "kept from the run's start" in log
     recorded = json.loads((partial.directory / "config.json").read_text())["matmul_path"]
-    monkeypatch.setattr("ilcsan.rl.training.choose_matmul_path",  # the uninterrupted run on the same path
+    monkeypatch.setattr("ilcsan.rl.run_setup.choose_matmul_path",  # the uninterrupted run on the same path
                         lambda *_: recorded_matmul_path(recorded, partial.config.matmul))
     train(partial.config, tmp_path / "straight", progress=False, **QUIET)
     assert [row["eval_return_mean"] for row in metrics(partial.directory)] == \
@@ -507,7 +507,7 @@ def test_estimates_assume_the_setting_not_the_cpu(monkeypatch):
     from ilcsan.methods import noisysan, proxy_target
 
     assert (f"training: Proxy Target 1 + {proxy_target.COST_PER_ITERATION:g}·K, "
-            f"NoisySAN {noisysan.NoisySAN.step_cost:g}") in footer
+            f"NoisySAN {noisysan.NoisySANDeclaration.step_cost:g}") in footer
     monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "fast")
     with pytest.raises(UserError, match="ILCSAN_STEPS_PER_SECOND='fast' must be a positive number"):
         estimate.steps_per_second_default()
@@ -571,7 +571,7 @@ def test_cli_runs_a_shrunk_grid_and_then_skips_it(tmp_path, capsys):
     run = tmp_path / "out" / "tiny" / "Pendulum-v1" / "pop" / "seed3"
     config = json.loads((run / "config.json").read_text())
     assert (config["table"], config["row"], config["label"], config["seed"]) == ("tiny", "pop", "PopSAN 16", 3)
-    assert config["td3"]["start_steps"] == 50 and config["threads"] == 1
+    assert config["training"]["start_steps"] == 50 and config["threads"] == 1
     assert "[start] Pendulum-v1/pop seed 3" in out and "[done ]" in out
     assert str(tmp_path / "out" / "tiny" / "report.md") in out
     code, out, _ = run_cli(capsys, *argv)

@@ -42,8 +42,8 @@ def test_the_beyond_grid_sets_each_rows_training_method(tmp_path) -> None:
     spec = TABLES["beyond"]
     assert (spec.tasks, spec.seeds, spec.steps) == (("Hopper",), 5, 200_000)
     runs = expand_grid(spec, tmp_path).runs
-    methods = {(run.row.slug, run.config.actor.preset, run.config.td3.target_actor, run.config.td3.exploration)
-               for run in runs}
+    methods = {(run.row.slug, run.config.actor.preset, run.config.training.target_actor,
+                run.config.training.exploration) for run in runs}
     assert methods == {("ilc-san", "ilc-san", "polyak", "gaussian"), ("ilc-san+proxy", "ilc-san", "proxy", "gaussian"),
                        ("ilc-san+noisy", "ilc-san", "polyak", "noisy"), ("dan", "dan", "polyak", "gaussian")}
     assert len(runs) == 20
@@ -56,48 +56,48 @@ def test_the_algorithms_grid_trains_one_actor_by_each_algorithm_on_the_beyond_gr
     assert (spec.tasks, spec.seeds, spec.steps) == (TABLES["beyond"].tasks, 5, 200_000)
     runs = expand_grid(spec, tmp_path).runs
     rows = {(run.row.slug, run.config.algorithm, run.config.actor.preset, run.config.actor.normalization,
-             run.config.td3.target_actor, run.config.td3.exploration) for run in runs}
+             run.config.training.target_actor, run.config.training.exploration) for run in runs}
     assert rows == {("ilc-san", "td3", "ilc-san", "none", "polyak", "gaussian"),
                     ("ilc-san+ddpg", "ddpg", "ilc-san", "none", "polyak", "gaussian"),
                     ("ilc-san+sac", "sac", "ilc-san", "none", "polyak", "gaussian"),
                     ("ilc-san+care-bn", "td3", "ilc-san", "care-bn", "polyak", "gaussian")}
     beyond = {run.row.slug: run.config for run in expand_grid(TABLES["beyond"], tmp_path / "beyond").runs}
     ours = {run.row.slug: run.config for run in runs}
-    assert ours["ilc-san"].actor == beyond["ilc-san"].actor and ours["ilc-san"].td3 == beyond["ilc-san"].td3
+    assert ours["ilc-san"].actor == beyond["ilc-san"].actor and ours["ilc-san"].training == beyond["ilc-san"].training
 
 
 def test_a_toml_row_sets_its_training_method_and_bad_values_are_refused() -> None:
-    row = {"slug": "proxy", "preset": "ilc-san", "td3": {"target_actor": "proxy", "proxy_iterations": 1,
-                                                        "proxy_lr": 3e-3}}
+    row = {"slug": "proxy", "preset": "ilc-san", "training": {"target_actor": "proxy", "proxy_iterations": 1,
+                                                             "proxy_lr": 3e-3}}
     spec = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [row]})
-    assert spec.rows[0].td3 == {"target_actor": "proxy", "proxy_iterations": 1, "proxy_lr": 3e-3}
-    for td3, message in (({"target_actor": "ann"}, "target-actor"), ({"proxy_iterations": 0}, "at least 1"),
-                         ({"gamma": 0.9}, "unknown key"), ({"proxy_lr": "fast"}, "td3")):
+    assert spec.rows[0].training == {"target_actor": "proxy", "proxy_iterations": 1, "proxy_lr": 3e-3}
+    for training, message in (({"target_actor": "ann"}, "target-actor"), ({"proxy_iterations": 0}, "at least 1"),
+                              ({"gamma": 0.9}, "unknown key"), ({"proxy_lr": "fast"}, "training")):
         with pytest.raises(UserError, match=message):
-            grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{**row, "td3": td3}]})
+            grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{**row, "training": training}]})
     with pytest.raises(UserError, match="--target-actor proxy is a training method for spiking actors"):
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
-                              "rows": [{"slug": "dan", "preset": "dan", "td3": {"target_actor": "proxy"}}]})
+                              "rows": [{"slug": "dan", "preset": "dan", "training": {"target_actor": "proxy"}}]})
     noisy = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [
-        {"slug": "noisy", "preset": "ilc-san", "td3": {"exploration": "noisy", "noisy_beta": 2.0}}]})
-    assert noisy.rows[0].td3 == {"exploration": "noisy", "noisy_beta": 2.0}
+        {"slug": "noisy", "preset": "ilc-san", "training": {"exploration": "noisy", "noisy_beta": 2.0}}]})
+    assert noisy.rows[0].training == {"exploration": "noisy", "noisy_beta": 2.0}
     with pytest.raises(UserError, match="--exploration noisy is a training method for spiking actors"):
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
-                              "rows": [{"slug": "dan", "preset": "dan", "td3": {"exploration": "noisy"}}]})
+                              "rows": [{"slug": "dan", "preset": "dan", "training": {"exploration": "noisy"}}]})
     with pytest.raises(UserError, match="noisy-beta"):
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
-                              "rows": [{"slug": "n", "preset": "ilc-san", "td3": {"noisy_beta": -1.0}}]})
+                              "rows": [{"slug": "n", "preset": "ilc-san", "training": {"noisy_beta": -1.0}}]})
 
 
 def test_a_rows_methods_are_checked_on_each_task_of_the_grid_and_of_the_command(tmp_path) -> None:
     from ilcsan.experiments.grid import GridOptions, expand_grid
 
-    noisy = {"slug": "noisy", "preset": "ilc-san", "td3": {"exploration": "noisy"}}
+    noisy = {"slug": "noisy", "preset": "ilc-san", "training": {"exploration": "noisy"}}
     with pytest.raises(UserError, match=r"rows\[0\] on Pendulum-v1: --exploration noisy on Pendulum-v1 needs "
                                         r"--noisy-return-reference R"):
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper", "Pendulum-v1"], "rows": [noisy]})
     given = grids.grid_from_dict({"name": "mine", "tasks": ["Pendulum-v1"], "seeds": 2, "rows": [
-        {**noisy, "td3": {"exploration": "noisy", "noisy_return_reference": 100.0}}]})
+        {**noisy, "training": {"exploration": "noisy", "noisy_return_reference": 100.0}}]})
     assert len(expand_grid(given, tmp_path).runs) == 2
     spec = TABLES["beyond"]
     with pytest.raises(UserError, match=r"table beyond, row ilc-san\+noisy, Pendulum-v1: --exploration noisy on "
@@ -106,7 +106,7 @@ def test_a_rows_methods_are_checked_on_each_task_of_the_grid_and_of_the_command(
     with pytest.raises(UserError, match=r"row ilc-san\+care-bn, Hopper: --normalization care-bn .* --batch-size must "
                                         r"be at least 2, got 1"):
         expand_grid(TABLES["algorithms"], tmp_path, GridOptions(rows=("ilc-san+care-bn",), seeds=(0,),
-                                                                td3={"batch_size": 1}))
+                                                                training={"batch_size": 1}))
 
 
 def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_follow(tmp_path) -> None:
@@ -117,15 +117,16 @@ def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_f
     from ilcsan.methods import sac, td3
 
     rows = [{"slug": "td3", "preset": "ilc-san"}, {"slug": "sac", "preset": "ilc-san", "algorithm": "sac"},
-            {"slug": "ddpg", "preset": "dan", "algorithm": "ddpg", "td3": {"preaction_penalty": 0.1}}]
+            {"slug": "ddpg", "preset": "dan", "algorithm": "ddpg", "training": {"preaction_penalty": 0.1}}]
     spec = grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "seeds": 1, "rows": rows})
     assert [row.algorithm for row in spec.rows] == ["td3", "sac", "ddpg"]
     assert {run.row.slug: run.config.algorithm for run in expand_grid(spec, tmp_path).runs} == {
         "td3": "td3", "sac": "sac", "ddpg": "ddpg"}
     dan_hopper = estimate.actor_step_cost("dan", "Hopper")
     assert [run_step_cost("Hopper", row) for row in spec.rows] == pytest.approx(
-        [1.0, sac.SAC.step_cost, td3.DDPG.step_cost * dan_hopper]), "DAN's own step times DDPG's cost"
-    assert sac.SAC.step_cost != 1.0 and td3.DDPG.step_cost != 1.0
+        [1.0, sac.SACDeclaration.step_cost, td3.DDPGDeclaration.step_cost * dan_hopper]
+    ), "DAN's own step times DDPG's cost"
+    assert sac.SACDeclaration.step_cost != 1.0 and td3.DDPGDeclaration.step_cost != 1.0
     listing = list_tables([spec], 100.0, 1)
     assert re.search(r"sac +sac +preset=ilc-san algorithm=sac\n", listing)
     assert re.search(r"td3 +td3 +preset=ilc-san\n", listing), "the default algorithm is not spelled out"
@@ -134,7 +135,7 @@ def test_a_toml_row_chooses_its_algorithm_which_its_runs_estimate_and_identity_f
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"], "rows": [{**rows[0], "algorithm": "ppo"}]})
     with pytest.raises(UserError, match="--exploration noisy is a method for TD3 and DDPG; SAC explores"):
         grids.grid_from_dict({"name": "mine", "tasks": ["Hopper"],
-                              "rows": [{**rows[1], "td3": {"exploration": "noisy"}}]})
+                              "rows": [{**rows[1], "training": {"exploration": "noisy"}}]})
 
 
 @pytest.mark.parametrize("name", PAPER_TABLES)

@@ -8,7 +8,7 @@ import csv
 import pytest
 
 from ilcsan.compute.process import set_matmul_precision
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.rl.evaluation import random_policy_return
 from ilcsan.rl.training import train
 from ilcsan.snn.diagnostics import constant_saturated_action
@@ -25,7 +25,7 @@ def test_ilc_san_learns_pendulum(tmp_path, matmul, monkeypatch):
     monkeypatch.setattr("ilcsan.rl.matmul_choice.gaining_products",
                         lambda times: {product for product in times if min(product[1][-2:]) >= 256})
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=6000, eval_every=2000, eval_episodes=5,
-                       actor=actor_config("ilc-san"), td3=TD3Config(start_steps=1000, update_after=1000),
+                       actor=actor_config("ilc-san"), training=TrainingConfig(start_steps=1000, update_after=1000),
                        threads=1, compile="off", matmul=matmul)
     try:
         result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
@@ -44,7 +44,7 @@ def test_an_actor_that_cannot_learn_stays_below_the_threshold(tmp_path):
     """The same budget with a frozen actor (learning rate ~0): the threshold is not reachable by accident."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=2000, eval_every=2000, eval_episodes=5,
                        actor=actor_config("ilc-san", hidden=(32, 32), learning_rate=1e-12),
-                       td3=TD3Config(start_steps=1000, update_after=1000), threads=1, compile="off")
+                       training=TrainingConfig(start_steps=1000, update_after=1000), threads=1, compile="off")
     result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
     assert result["best_return"] < THRESHOLD
 
@@ -59,8 +59,8 @@ def test_ilc_san_learns_pendulum_with_a_proxy_target(tmp_path):
     imitation itself."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=6000, eval_every=2000, eval_episodes=5,
                        actor=actor_config("ilc-san"),
-                       td3=TD3Config(start_steps=1000, update_after=1000, target_actor="proxy", proxy_iterations=1,
-                                     proxy_lr=3e-3),
+                       training=TrainingConfig(start_steps=1000, update_after=1000, target_actor="proxy",
+                                               proxy_iterations=1, proxy_lr=3e-3),
                        threads=1, compile="off")
     result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
     assert result["best_return"] > THRESHOLD, f"ILC-SAN + Proxy Target reached only {result['best_return']:.1f}"
@@ -76,7 +76,7 @@ def test_ilc_san_learns_pendulum_with_noisysan_exploration(tmp_path):
     above is the control."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=8000, eval_every=1000, eval_episodes=5,
                        actor=actor_config("ilc-san"),
-                       td3=TD3Config(start_steps=1000, update_after=1000, exploration="noisy",
+                       training=TrainingConfig(start_steps=1000, update_after=1000, exploration="noisy",
                                      noisy_return_reference=1000.0),
                        threads=1, compile="off")
     result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
@@ -91,7 +91,7 @@ def test_ilc_san_learns_pendulum_with_another_algorithm(tmp_path, algorithm):
     DDPG −216, −199, −147. The frozen actor above is the control for the threshold."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=6000, eval_every=1000, eval_episodes=5,
                        actor=actor_config("ilc-san"), algorithm=algorithm,
-                       td3=TD3Config(start_steps=1000, update_after=1000), threads=1, compile="off")
+                       training=TrainingConfig(start_steps=1000, update_after=1000), threads=1, compile="off")
     result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
     assert result["best_return"] > THRESHOLD, f"ILC-SAN trained by {algorithm} reached only {result['best_return']:.1f}"
 
@@ -105,6 +105,6 @@ def test_ilc_san_learns_pendulum_with_care_bn(tmp_path):
     above is the control."""
     config = RunConfig(task="Pendulum-v1", seeds=(0,), steps=6000, eval_every=1000, eval_episodes=5,
                        actor=actor_config("ilc-san", normalization="care-bn"),
-                       td3=TD3Config(start_steps=1000, update_after=1000), threads=1, compile="off")
+                       training=TrainingConfig(start_steps=1000, update_after=1000), threads=1, compile="off")
     result = train(config, tmp_path / "run", progress=False, log=lambda *_: None)[0]
     assert result["best_return"] > THRESHOLD, f"ILC-SAN + CaRe-BN reached only {result['best_return']:.1f}"

@@ -23,7 +23,7 @@ from ilcsan.compute.matmul import (
     product_times,
 )
 from ilcsan.compute.programs import DirectProgram, value_and_grads
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.rl.matmul_choice import run_products
 from ilcsan.rl.training import Trainer
 from ilcsan.snn.ensemble import EnsembleLinear, EnsembleMLP, seed_generators
@@ -61,7 +61,7 @@ def test_layer_gradients_agree_on_every_float32_path(path):
     x = torch.randn(2, 4, 6, 7, requires_grad=True)
 
     def grads(kind: str):
-        layer = EnsembleLinear(2, 7, 5, matmul=MatmulPath(kind))
+        layer = EnsembleLinear(2, 7, 5, matmul_path=MatmulPath(kind))
         layer.reset_parameters(seed_generators([0, 1], 0))
         x.grad = None
         (layer(x) ** 2).sum().backward()
@@ -145,7 +145,7 @@ def test_run_products_counts_how_often_a_step_computes_each_product():
     200 steps every 500 steps, twin critics of 12."""
     config = RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
                        actor=actor_config("ilc-san", hidden=(8,)),
-                       td3=TD3Config(batch_size=16, critic_hidden=(12,), policy_delay=2))
+                       training=TrainingConfig(batch_size=16, critic_hidden=(12,), policy_delay=2))
     counts = run_products(config, 3, 1, episode_steps=200)
     forward, grad_input, grad_weight = layer_products(2, 5 * 16, 30, 8)
     assert counts[layer_products(2, 5, 30, 8)[0]] == 1.0  # acting, every step
@@ -163,7 +163,8 @@ def test_run_products_counts_how_often_a_step_computes_each_product():
 def test_a_run_records_its_matmul_choice_in_config_json(tmp_path, restore_path):
     lines = []
     config = RunConfig(task="Pendulum-v1", steps=10, eval_every=10, eval_episodes=1, threads=1,
-                       actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=10))
+                       actor=actor_config("ilc-san", hidden=(8,)),
+                       training=TrainingConfig(start_steps=10, update_after=10))
     Trainer(config, tmp_path / "run", progress=False, log=lines.append).close()
     recorded = json.loads((tmp_path / "run" / "config.json").read_text())["matmul_path"]
     assert recorded["path"] in PATHS and not recorded["compiled"]
@@ -187,6 +188,7 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
     resume, it measures anew."""
     if not onednn_available():
         pytest.skip("this torch has no oneDNN")
+    import ilcsan.rl.run_setup as run_setup
     import ilcsan.rl.training as training
     from ilcsan.rl.matmul_choice import choose_matmul_path
 
@@ -198,21 +200,22 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
         return choose
 
     config = RunConfig(task="Pendulum-v1", steps=20, eval_every=10, eval_episodes=1, threads=1,
-                       actor=actor_config("ilc-san", hidden=(8,)), td3=TD3Config(start_steps=10, update_after=5))
-    monkeypatch.setattr(training, "choose_matmul_path", measuring("aten"))
+                       actor=actor_config("ilc-san", hidden=(8,)),
+                       training=TrainingConfig(start_steps=10, update_after=5))
+    monkeypatch.setattr(run_setup, "choose_matmul_path", measuring("aten"))
     training.train(RunConfig(**{**config.__dict__, "steps": 10}), tmp_path / "run", progress=False, log=print)
-    monkeypatch.setattr(training, "choose_matmul_path", measuring("onednn"))
+    monkeypatch.setattr(run_setup, "choose_matmul_path", measuring("onednn"))
     lines: list[str] = []
     trainer = Trainer(config, tmp_path / "run", resume=True, progress=False, log=lines.append)
     try:
-        assert trainer.matmul["path"] == "aten"
+        assert trainer.matmul_choice["path"] == "aten"
         assert any(line.startswith("matmul: aten (kept from the run's start") for line in lines)
     finally:
         trainer.close()
     bf16 = RunConfig(**{**config.__dict__, "matmul": "bf16"})
     trainer = Trainer(bf16, tmp_path / "run", resume=True, progress=False, log=lines.append)
     try:
-        assert trainer.matmul["path"] == "bf16" and "kept" not in trainer.matmul
+        assert trainer.matmul_choice["path"] == "bf16" and "kept" not in trainer.matmul_choice
     finally:
         trainer.close()
 
@@ -236,7 +239,7 @@ def test_a_layer_runs_its_products_on_the_path_it_was_built_with():
     """No process-wide setting: two layers built with different paths in one process keep their own."""
     generator = torch.Generator().manual_seed(5)
     x = torch.randn(1, 40, 30, generator=generator)
-    exact, rounded = (EnsembleLinear(1, 30, 20, matmul=MatmulPath(kind)) for kind in ("aten", "bf16"))
+    exact, rounded = (EnsembleLinear(1, 30, 20, matmul_path=MatmulPath(kind)) for kind in ("aten", "bf16"))
     for layer in (exact, rounded):
         layer.reset_parameters(seed_generators([0], 0))
         reference = torch.baddbmm(exact.bias.unsqueeze(1).double(), x.double(), exact.weight.double().transpose(1, 2))
@@ -286,7 +289,7 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
     monkeypatch.setattr(ensemble._EnsembleAffine, "backward", staticmethod(recording_backward))
     config = RunConfig(task="Pendulum-v1", seeds=(0, 1), steps=160, eval_every=160, eval_episodes=2, threads=1,
                        actor=actor_config(preset, hidden=(8,), **options), compile="off", algorithm=algorithm,
-                       td3=TD3Config(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),
+                       training=TrainingConfig(start_steps=150, update_after=150, batch_size=16, critic_hidden=(12,),
                                      target_actor=target))
     trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)
     try:
@@ -299,12 +302,12 @@ def test_run_products_lists_every_product_a_run_computes(tmp_path, preset, optio
 def test_a_proxy_runs_products_are_what_its_declaration_says(monkeypatch):
     """run_products names no method: a proxy run's products are a plain run's changed by Proxy Target's declared
     hook (the proxy's fit and forward, the actor's forward over its regression targets, no target actor's pass)."""
-    from ilcsan.methods.proxy_target import PROXY_HIDDEN, ProxyTarget
+    from ilcsan.methods.proxy_target import PROXY_HIDDEN, ProxyTargetDeclaration
 
     def config(target_actor: str) -> RunConfig:
         return RunConfig(task="Pendulum-v1", seeds=(0, 1), eval_every=500, eval_episodes=4,
                          actor=actor_config("ilc-san", hidden=(8,)),
-                         td3=TD3Config(batch_size=16, critic_hidden=(12,), target_actor=target_actor,
+                         training=TrainingConfig(batch_size=16, critic_hidden=(12,), target_actor=target_actor,
                                        proxy_iterations=3))
 
     plain, proxy = run_products(config("polyak"), 3, 1, 200), run_products(config("proxy"), 3, 1, 200)
@@ -317,5 +320,5 @@ def test_a_proxy_runs_products_are_what_its_declaration_says(monkeypatch):
     for d_in, d_out in ((3, PROXY_HIDDEN[0]), (PROXY_HIDDEN[-1], 1)):  # (a square layer's two products share a shape)
         fit = layer_products(2, 16, d_in, d_out)
         assert [proxy[product] for product in fit] == [4.0, 3.0, 3.0]  # K regression steps, and π' once more
-    monkeypatch.setattr(ProxyTarget, "products", classmethod(lambda cls, *args: None))
+    monkeypatch.setattr(ProxyTargetDeclaration, "products", classmethod(lambda cls, *args: None))
     assert run_products(config("proxy"), 3, 1, 200) == plain  # without its hook, nothing of the proxy is counted

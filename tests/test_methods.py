@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from ilcsan import methods
-from ilcsan.config import actor_config, check_settings, td3_config_class
+from ilcsan.config import actor_config, check_settings, training_config_class
 from ilcsan.errors import UserError
 from ilcsan.methods import Declared
 from ilcsan.rl.adam import Adam
@@ -42,7 +42,7 @@ class UniformNoiseWithALevel(Exploration):
         self.module = Level(len(context.seeds))
         self.adam = Adam(self.module, context.actor_config.learning_rate)
         self.scale, self.offset = context.task.action_scale, context.task.action_offset
-        self.width = context.td3.toy_width
+        self.width = context.training.toy_width
         self.explored = 0
 
     def explore(self, agent, states: np.ndarray, rngs) -> np.ndarray:
@@ -85,23 +85,23 @@ def toy():
     methods.unregister(ToyNoise)
 
 
-def toy_td3(**options):
-    """The small runs' training settings (:data:`test_training.TINY_TD3`) with the toy's exploration, as the training
-    settings made now that the toy is registered."""
-    from test_training import TINY_TD3
+def toy_training(**options):
+    """The small runs' training settings (:data:`test_training.TINY_TRAINING`) with the toy's exploration, as the
+    training settings made now that the toy is registered."""
+    from test_training import TINY_TRAINING
 
-    return td3_config_class()(**{**dataclasses.asdict(TINY_TD3), "exploration": "toy", **options})
+    return training_config_class()(**{**dataclasses.asdict(TINY_TRAINING), "exploration": "toy", **options})
 
 
 def test_registering_makes_the_name_a_setting_and_a_method(toy):
-    td3 = td3_config_class()(exploration="toy")
-    assert methods.relative_cost(td3) == 1.5 and td3.toy_width == 0.3
+    training = training_config_class()(exploration="toy")
+    assert methods.relative_cost(training) == 1.5 and training.toy_width == 0.3
     assert ToyNoise.cost_note == "1.5", "the phrase of reproduce --list comes from the declared step cost"
-    check_settings(td3)  # a valid choice now
+    check_settings(training)  # a valid choice now
     with pytest.raises(UserError, match="--exploration 'toys' is not one of: gaussian, noisy, toy"):
-        check_settings(td3_config_class()(exploration="toys"))
+        check_settings(training_config_class()(exploration="toys"))
     with pytest.raises(UserError, match="--toy-width must be a positive number"):
-        check_settings(td3_config_class()(exploration="toy", toy_width=0.0))
+        check_settings(training_config_class()(exploration="toy", toy_width=0.0))
     with pytest.raises(ValueError, match="needs the paper"):
         methods.register(type("Nameless", (ToyNoise,), {"name": "nameless", "paper": ""}))
     with pytest.raises(ValueError, match="toy_width are another method's"):
@@ -109,13 +109,13 @@ def test_registering_makes_the_name_a_setting_and_a_method(toy):
 
 
 def test_unregistering_gives_back_the_same_settings_class():
-    plain = td3_config_class()
+    plain = training_config_class()
     methods.register(ToyNoise)
     try:
-        assert td3_config_class() is not plain and "toy_width" not in {f.name for f in dataclasses.fields(plain)}
+        assert training_config_class() is not plain and "toy_width" not in {f.name for f in dataclasses.fields(plain)}
     finally:
         methods.unregister(ToyNoise)
-    assert td3_config_class() is plain
+    assert training_config_class() is plain
 
 
 def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tmp_path, monkeypatch):
@@ -133,13 +133,13 @@ def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tm
     assert "--toy-width TOY_WIDTH" in train_help and "the toy's noise width" in train_help
     assert "toy, uniform noise with a level (tests only)" in train_help  # among --exploration's choices
     config = build_run_config(parser.parse_args(["train", "--exploration", "toy", "--toy-width", "0.2"]))
-    assert (config.td3.exploration, config.td3.toy_width) == ("toy", 0.2)
+    assert (config.training.exploration, config.training.toy_width) == ("toy", 0.2)
 
     grid = tmp_path / "toy.toml"
     grid.write_text('name = "toys"\ntasks = ["Pendulum-v1"]\n[[rows]]\nslug = "toy"\npreset = "ilc-san"\n'
-                    'td3 = { exploration = "toy", toy_width = 0.2 }\n')
+                    'training = { exploration = "toy", toy_width = 0.2 }\n')
     row = load_grid(grid).rows[0]
-    assert row.td3 == {"exploration": "toy", "toy_width": 0.2} and method_step_cost(row) == 1.5
+    assert row.training == {"exploration": "toy", "toy_width": 0.2} and method_step_cost(row) == 1.5
 
     actor = actor_config("ilc-san").to_dict()
     narrow = configuration_key(actor, {"exploration": "toy", "toy_width": 0.2})
@@ -153,7 +153,7 @@ def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tm
 def test_a_registered_method_trains_checkpoints_and_resumes_exactly(toy, tmp_path, monkeypatch):
     from test_training import assert_resumes_to_the_same_curve, tiny_run
 
-    config = tiny_run(seeds=(0, 1), steps=450, td3=toy_td3())
+    config = tiny_run(seeds=(0, 1), steps=450, training=toy_training())
     checkpoints = assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch)
     for straight, resumed in checkpoints:
         level = float(straight["exploration"]["level"][0])
@@ -166,10 +166,10 @@ def test_its_loss_term_runs_inside_the_compiled_update_as_it_does_uncompiled(toy
     from test_training import _random_batch, assert_same_updates
 
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    td3 = td3_config_class()(exploration="toy", critic_hidden=(16, 16))
+    training = training_config_class()(exploration="toy", critic_hidden=(16, 16))
     task = TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0])
-    eager = TD3(config, td3, task, (7, 8))
-    compiled = TD3(config, td3, task, (7, 8), ComputeSettings(compile=True))
+    eager = TD3(config, training, task, (7, 8))
+    compiled = TD3(config, training, task, (7, 8), ComputeSettings(compile=True))
     rng = np.random.default_rng(5)
     assert_same_updates(eager, compiled, [_random_batch(rng, 2, 16, 3, 2) for _ in range(6)], atol=2e-5)
     levels = [agent.exploration.module.level.detach() for agent in (eager, compiled)]
@@ -185,7 +185,7 @@ def test_a_run_uses_the_registered_method(toy, tmp_path, monkeypatch):
     original = UniformNoiseWithALevel.explore
     monkeypatch.setattr(UniformNoiseWithALevel, "explore",
                         lambda self, *args: calls.append(1) or original(self, *args))
-    config = tiny_run(steps=200, eval_every=200, td3=toy_td3(start_steps=150))
+    config = tiny_run(steps=200, eval_every=200, training=toy_training(start_steps=150))
     train(config, tmp_path / "run", progress=False, log=lambda *_: None)
     assert len(calls) == 200 - 150  # every step after the random phase explores through the method
 

@@ -18,7 +18,7 @@ import ilcsan.actors
 from ilcsan.actors import build_actor
 from ilcsan.cli import main
 from ilcsan.compute.programs import module_tensors
-from ilcsan.config import ActorConfig, TD3Config, actor_config
+from ilcsan.config import ActorConfig, TrainingConfig, actor_config
 from ilcsan.deploy import DeployedActor
 from ilcsan.deploy.bundle import bundle_arrays, bundle_meta, export_npz
 from ilcsan.deploy.policy import load
@@ -52,7 +52,7 @@ def running_mean_actors(monkeypatch):
 
 
 def _agent(seeds) -> TD3:
-    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), seeds)
+    return TD3(actor_config("ilc-san", hidden=(8, 8)), TrainingConfig(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), seeds)
 
 
 def _train_once(agent: TD3) -> None:

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from ilcsan.actors import build_actor
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
@@ -19,11 +19,11 @@ from ilcsan.snn.noise import NeuronNoise, autocorrelation, fft_length, window_co
 from ilcsan.snn.output import PassOptions
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
-NOISY = TD3Config(exploration="noisy", noisy_return_reference=100.0)
+NOISY = TrainingConfig(exploration="noisy", noisy_return_reference=100.0)
 
 
-def _agent(td3: TD3Config = NOISY, seeds=(0,), actor=SMALL_ACTOR, **options) -> TD3:
-    return TD3(actor, td3, TaskSpace(3, 2, [2.0, 1.0], [0.0, 0.5], episode_steps=50), seeds,
+def _agent(training: TrainingConfig = NOISY, seeds=(0,), actor=SMALL_ACTOR, **options) -> TD3:
+    return TD3(actor, training, TaskSpace(3, 2, [2.0, 1.0], [0.0, 0.5], episode_steps=50), seeds,
                ComputeSettings(**options))
 
 
@@ -97,7 +97,7 @@ def test_acting_noise_is_one_coloured_series_per_episode_read_t_samples_per_acti
     assert autocorrelation(pink, timesteps) > 0.35  # and across successive actions
     exploration.end_episode(0)
     assert not torch.equal(exploration.acting_noise()[0, 0], series[:timesteps])  # a new episode, a new series
-    white = _agent(TD3Config(exploration="noisy", noisy_beta=0.0, noisy_return_reference=1.0)).exploration.module
+    white = _agent(TrainingConfig(exploration="noisy", noisy_beta=0.0, noisy_return_reference=1.0)).exploration.module
     noise = torch.cat([white.acting_noise()[0, 0] for _ in range(40)]).T.numpy().astype(np.float64)
     assert abs(autocorrelation(noise, 1)) < 0.05
 
@@ -112,7 +112,7 @@ def test_the_update_noise_has_the_window_covariance_of_the_exploration_series():
 
 
 def test_evaluation_is_deterministic_and_unchanged_while_exploring_is_not():
-    noisy, plain = _agent(), _agent(TD3Config())
+    noisy, plain = _agent(), _agent(TrainingConfig())
     states = np.random.default_rng(0).normal(size=(1, 3)).astype(np.float32)
     before = noisy.act(states)
     explored = [noisy.explore(states, []) for _ in range(3)]
@@ -199,10 +199,10 @@ def test_each_seed_of_a_stacked_noisy_run_explores_and_updates_like_a_single_run
 
 def test_noisy_exploration_is_refused_for_dan_and_needs_a_reference_return_off_the_paper_tasks(tmp_path):
     dan = RunConfig(task="Pendulum-v1", steps=10, actor=actor_config("dan", hidden=(8,)),
-                    td3=TD3Config(exploration="noisy", noisy_return_reference=1.0), threads=1)
+                    training=TrainingConfig(exploration="noisy", noisy_return_reference=1.0), threads=1)
     with pytest.raises(UserError, match="DAN"):
         train(dan, tmp_path / "dan", progress=False, log=lambda *_: None)
-    unknown = RunConfig(task="Pendulum-v1", steps=10, actor=SMALL_ACTOR, td3=TD3Config(exploration="noisy"))
+    unknown = RunConfig(task="Pendulum-v1", steps=10, actor=SMALL_ACTOR, training=TrainingConfig(exploration="noisy"))
     with pytest.raises(UserError, match="--noisy-return-reference"):
         train(unknown, tmp_path / "pendulum", progress=False, log=lambda *_: None)
     assert not (tmp_path / "pendulum").exists()
@@ -215,9 +215,9 @@ def test_the_options_parse_are_saved_in_config_json_and_bad_values_are_one_line(
     args = build_parser().parse_args(["train", "--task", "Hopper", "--exploration", "noisy", "--noisy-sigma", "0.3",
                                       "--noisy-beta", "2", "--noisy-return-reference", "3000"])
     config = build_run_config(args)
-    assert (config.td3.exploration, config.td3.noisy_sigma, config.td3.noisy_beta,
-            config.td3.noisy_return_reference) == ("noisy", 0.3, 2.0, 3000.0)
-    assert RunConfig.from_dict(json.loads(json.dumps(config.for_seed(0)))).td3 == config.td3
+    assert (config.training.exploration, config.training.noisy_sigma, config.training.noisy_beta,
+            config.training.noisy_return_reference) == ("noisy", 0.3, 2.0, 3000.0)
+    assert RunConfig.from_dict(json.loads(json.dumps(config.for_seed(0)))).training == config.training
     assert main(["train", "--task", "Hopper", "--exploration", "noisy", "--noisy-beta", "-1", "--steps", "10",
                  "--out", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err

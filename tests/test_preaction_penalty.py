@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from ilcsan.config import TD3Config, actor_config
+from ilcsan.config import TrainingConfig, actor_config
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import SAC, TD3
 from ilcsan.snn.output import PassOptions
@@ -16,7 +16,7 @@ SMALL = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timest
 
 
 def _agent(preset: str, penalty: float, compile: bool = False) -> TD3:
-    return TD3(actor_config(preset, **SMALL[preset]), TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty),
+    return TD3(actor_config(preset, **SMALL[preset]), TrainingConfig(critic_hidden=(16, 16), preaction_penalty=penalty),
                TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), (7, 8), ComputeSettings(compile=compile))
 
 
@@ -77,7 +77,7 @@ def test_the_compiled_update_with_the_penalty_equals_the_eager_one(preset):
 def test_sac_adds_the_penalty_of_its_mean_through_the_same_loss_term():
     """SAC's actor loss gets λ·mean(μ²) of its pre-tanh mean μ from the same loss term as TD3's, and only when λ > 0."""
     config = actor_config("ilc-san", **SMALL["ilc-san"])
-    plain, penalised = (SAC(config, TD3Config(critic_hidden=(16, 16), preaction_penalty=penalty),
+    plain, penalised = (SAC(config, TrainingConfig(critic_hidden=(16, 16), preaction_penalty=penalty),
                             TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5]), (7, 8)) for penalty in (0.0, 0.25))
     terms = [type(term).__name__ for term in penalised.actor_methods.loss_terms]
     assert not plain.actor_methods.loss_terms and terms == ["PreactionPenalty"]

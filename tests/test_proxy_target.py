@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.errors import UserError
 from ilcsan.methods.proxy_target import PROXY_HIDDEN
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
@@ -20,11 +20,11 @@ from ilcsan.rl.methods.proxy_target import ProxyTarget
 from ilcsan.rl.training import train
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))
-PROXY_TD3 = TD3Config(target_actor="proxy", target_noise=0.0)
+PROXY_TRAINING = TrainingConfig(target_actor="proxy", target_noise=0.0)
 
 
-def _agent(td3: TD3Config, seeds=(0,), actor=SMALL_ACTOR) -> TD3:
-    return TD3(actor, td3, TaskSpace(3, 2, [2.0, 1.0], [0.0, 0.5]), seeds)
+def _agent(training: TrainingConfig, seeds=(0,), actor=SMALL_ACTOR) -> TD3:
+    return TD3(actor, training, TaskSpace(3, 2, [2.0, 1.0], [0.0, 0.5]), seeds)
 
 
 def _states(rng, seeds: int, batch: int = 64) -> torch.Tensor:
@@ -41,15 +41,15 @@ def _manual_target(agent: TD3, target_actor, next_obs, reward, terminal):
 
 
 def test_the_proxy_is_a_continuous_mlp_and_the_spiking_target_is_gone():
-    agent = _agent(PROXY_TD3)
+    agent = _agent(PROXY_TRAINING)
     assert isinstance(agent.target_method, ProxyTarget) and agent.actor_target is agent.target_method.module
     assert [layer.out_features for layer in agent.target_method.module.mlp.layers] == [*PROXY_HIDDEN, 2]
     assert all(p.requires_grad for p in agent.target_method.module.parameters())
-    assert isinstance(_agent(TD3Config()).target_method, PolyakTarget)
+    assert isinstance(_agent(TrainingConfig()).target_method, PolyakTarget)
 
 
 def test_the_proxy_learns_to_imitate_the_spiking_actor_and_leaves_it_unchanged():
-    agent = _agent(PROXY_TD3)
+    agent = _agent(PROXY_TRAINING)
     actor_before = copy.deepcopy(agent.actor.state_dict())
     rng = np.random.default_rng(0)
     held_out = _states(rng, 1, 256)
@@ -72,7 +72,7 @@ def test_target_values_use_the_proxy_when_asked():
     rng = np.random.default_rng(1)
     next_obs, reward = _states(rng, 1, 8), torch.ones(1, 8)
     terminal, noise = torch.zeros(1, 8), torch.zeros(1, 8, 2)
-    proxy_agent = _agent(PROXY_TD3)
+    proxy_agent = _agent(PROXY_TRAINING)
     expected = _manual_target(proxy_agent, proxy_agent.target_method.module, next_obs, reward, terminal)
     with torch.no_grad():
         got = proxy_agent.target_values(_batch(next_obs, noise, reward, terminal))
@@ -86,7 +86,7 @@ def test_target_values_use_the_soft_updated_spiking_target_otherwise():
     rng = np.random.default_rng(2)
     next_obs, reward = _states(rng, 1, 8), torch.ones(1, 8)
     terminal, noise = torch.zeros(1, 8), torch.zeros(1, 8, 2)
-    agent = _agent(TD3Config(target_noise=0.0))
+    agent = _agent(TrainingConfig(target_noise=0.0))
     assert type(agent.actor_target) is type(agent.actor)
     spiking_copy = copy.deepcopy(agent.actor)
     with torch.no_grad():
@@ -103,8 +103,8 @@ def _random_batch(rng, seeds: int, iterations: int) -> dict[str, np.ndarray]:
 
 
 def test_each_seed_of_a_stacked_proxy_updates_like_a_single_run():
-    td3 = TD3Config(target_actor="proxy", proxy_iterations=2)
-    many, single = _agent(td3, seeds=(4, 11)), _agent(td3, seeds=(11,))
+    training = TrainingConfig(target_actor="proxy", proxy_iterations=2)
+    many, single = _agent(training, seeds=(4, 11)), _agent(training, seeds=(11,))
     rng = np.random.default_rng(3)
     for _ in range(4):
         arrays = _random_batch(rng, 2, 2)
@@ -119,7 +119,7 @@ def test_each_seed_of_a_stacked_proxy_updates_like_a_single_run():
 
 def test_the_proxy_is_refused_for_dan(tmp_path):
     config = RunConfig(task="Pendulum-v1", steps=10, actor=actor_config("dan", hidden=(8,)),
-                       td3=TD3Config(target_actor="proxy"), threads=1)
+                       training=TrainingConfig(target_actor="proxy"), threads=1)
     with pytest.raises(UserError, match="DAN"):
         train(config, tmp_path / "dan", progress=False, log=lambda *_: None)
 
@@ -131,9 +131,10 @@ def test_the_options_parse_and_are_saved_in_config_json(tmp_path):
     args = build_parser().parse_args(["train", "--task", "Pendulum-v1", "--target-actor", "proxy",
                                       "--proxy-iterations", "1", "--proxy-lr", "3e-3"])
     config = build_run_config(args)
-    assert (config.td3.target_actor, config.td3.proxy_iterations, config.td3.proxy_lr) == ("proxy", 1, 3e-3)
+    training = config.training
+    assert (training.target_actor, training.proxy_iterations, training.proxy_lr) == ("proxy", 1, 3e-3)
     saved = json.loads(json.dumps(config.for_seed(0)))
-    assert RunConfig.from_dict(saved).td3 == config.td3
+    assert RunConfig.from_dict(saved).training == config.training
     with pytest.raises(UserError, match="target-actor"):
         build_run_config(build_parser().parse_args(["train", "--target-actor", "ann"]))
 
@@ -144,7 +145,7 @@ def test_an_interrupted_proxy_run_resumes_to_the_same_curve(tmp_path, monkeypatc
     config = tiny_method_run(target_actor="proxy", proxy_iterations=2)
     checkpoints = assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch)
     resumed = checkpoints[1][1]
-    assert resumed["config"]["td3"]["target_actor"] == "proxy" and resumed["proxy_optimizer"]
+    assert resumed["config"]["training"]["target_actor"] == "proxy" and resumed["proxy_optimizer"]
 
 
 def test_a_compiled_proxy_agent_updates_like_the_eager_one():
@@ -153,10 +154,10 @@ def test_a_compiled_proxy_agent_updates_like_the_eager_one():
     turns the float rounding of the 512-wide proxy's near-zero gradients into visible differences after some 36
     steps."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    td3 = TD3Config(target_actor="proxy", proxy_iterations=2)
+    training = TrainingConfig(target_actor="proxy", proxy_iterations=2)
     task = TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0])
-    eager = TD3(config, td3, task, (7,))
-    compiled = TD3(config, td3, task, (7,), ComputeSettings(compile=True))
+    eager = TD3(config, training, task, (7,))
+    compiled = TD3(config, training, task, (7,), ComputeSettings(compile=True))
     from test_training import assert_same_updates
 
     rng = np.random.default_rng(4)

@@ -351,14 +351,14 @@ def test_untagged_runs_are_placed_in_a_grid_table_by_label(tmp_path: Path) -> No
 
 
 def trained_run(root: Path, task: str, seed: int, returns: list[float], preset: str = "ilc-san",
-                td3: dict | None = None, **overrides) -> Path:
-    """A run as ``ilcsan train`` writes it (no table or row tag; the full actor and TD3 settings)."""
-    from ilcsan.config import TD3Config, actor_config
+                training: dict | None = None, **overrides) -> Path:
+    """A run as ``ilcsan train`` writes it (no table or row tag; the full actor and training settings)."""
+    from ilcsan.config import TrainingConfig, actor_config
 
     run = make_run(root, task, seed, preset, returns, subdir=f"mine/{preset}-{len(list(root.rglob('*')))}")
     config = json.loads((run / "config.json").read_text())
     config |= {"actor": actor_config(preset, **overrides).to_dict(),
-               "td3": json.loads(json.dumps(dataclasses.asdict(TD3Config(**(td3 or {})))))}
+               "training": json.loads(json.dumps(dataclasses.asdict(TrainingConfig(**(training or {})))))}
     (run / "config.json").write_text(json.dumps(config))
     return run
 
@@ -367,9 +367,9 @@ def test_untagged_runs_are_placed_in_a_table_by_their_configuration(tmp_path: Pa
     trained_run(tmp_path, "Hopper", 0, [3400])
     trained_run(tmp_path, "Hopper", 1, [3600])
     trained_run(tmp_path, "Hopper", 0, [900], hidden=(64, 64))  # another actor: in no row of the paper
-    trained_run(tmp_path, "Hopper", 0, [3500], td3={"target_actor": "proxy"})
-    trained_run(tmp_path, "Hopper", 0, [3300], td3={"exploration": "noisy"})
-    trained_run(tmp_path, "Hopper", 2, [100], td3={"preaction_penalty": 0.1})  # another objective: in no row
+    trained_run(tmp_path, "Hopper", 0, [3500], training={"target_actor": "proxy"})
+    trained_run(tmp_path, "Hopper", 0, [3300], training={"exploration": "noisy"})
+    trained_run(tmp_path, "Hopper", 2, [100], training={"preaction_penalty": 0.1})  # another objective: in no row
     runs = collect_runs(tmp_path)
     perf = build_table(runs, "perf")
     cell = perf.cell("ilc-san-pop-det", "Hopper")
@@ -392,7 +392,7 @@ def test_runs_of_another_grid_join_a_table_by_their_configuration_also_when_save
     tagged(0, [3600], "beyond", "ilc-san")
     tagged(1, [3400], "beyond", "ilc-san", drop="intra_timing")  # saved before --intra-timing: Algorithm 1's
     tagged(2, [3000], "fidelity", "authors", intra_timing="authors")  # another actor: in no row of perf
-    tagged(3, [3500], "beyond", "ilc-san+proxy", td3={"target_actor": "proxy"})  # another method
+    tagged(3, [3500], "beyond", "ilc-san+proxy", training={"target_actor": "proxy"})  # another method
     tagged(4, [1000], "intra", "self", intra="self")
     trained_run(tmp_path, "Hopper", 5, [3200])
     runs = collect_runs(tmp_path)
@@ -412,7 +412,7 @@ def test_the_algorithms_grid_takes_the_beyond_grids_ilc_san_runs_and_keeps_algor
 
     tagged(0, [1700], "beyond", "ilc-san")
     tagged(3, [40], "beyond", "ilc-san")
-    tagged(3, [3100], "beyond", "ilc-san+proxy", td3={"target_actor": "proxy"})  # a method the grid has no row for
+    tagged(3, [3100], "beyond", "ilc-san+proxy", training={"target_actor": "proxy"})  # a method the grid has no row for
     tagged(3, [2500], "algorithms", "ilc-san+sac", algorithm="sac")
     tagged(3, [2200], "algorithms", "ilc-san+ddpg", algorithm="ddpg")
     tagged(3, [2900], "algorithms", "ilc-san+care-bn", normalization="care-bn")

@@ -15,7 +15,7 @@ from torch import nn
 
 from ilcsan import methods
 from ilcsan.actors import build_actor
-from ilcsan.config import TD3Config, actor_config
+from ilcsan.config import TrainingConfig, actor_config
 from ilcsan.deploy.state import export_state
 from ilcsan.methods import Declared
 from ilcsan.rl.agent_settings import TaskSpace
@@ -84,7 +84,7 @@ def test_the_actor_normalises_with_the_declared_layer(toy_shift):
 
 
 def test_the_update_trains_it_and_keeps_its_buffer_in_checkpoints(toy_shift):
-    agent = TD3(actor_config("ilc-san", hidden=(8,), normalization=toy_shift), TD3Config(policy_delay=1),
+    agent = TD3(actor_config("ilc-san", hidden=(8,), normalization=toy_shift), TrainingConfig(policy_delay=1),
                 TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (0,))
     shifted(agent.actor)
     before = agent.actor.layers[0].weight.detach().clone()

@@ -11,19 +11,19 @@ import pytest
 import torch
 
 from ilcsan.compute.matmul import MatmulPath, onednn_available
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl import training
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import Trainer, train
 
-TINY_TD3 = TD3Config(start_steps=150, update_after=100, update_every=25, batch_size=16)
+TINY_TRAINING = TrainingConfig(start_steps=150, update_after=100, update_every=25, batch_size=16)
 
 
 def tiny_run(**overrides) -> RunConfig:
     values = dict(task="Pendulum-v1", seeds=(0,), steps=300, eval_every=150, eval_episodes=1,
-                  actor=actor_config("ilc-san", hidden=(16, 16)), td3=TINY_TD3, threads=1)
+                  actor=actor_config("ilc-san", hidden=(16, 16)), training=TINY_TRAINING, threads=1)
     values.update(overrides)
     return RunConfig(**values)
 
@@ -34,7 +34,7 @@ def read_metrics(path):
 
 
 def test_critic_target_uses_min_of_twins_and_ignores_truncation():
-    agent = TD3(actor_config("dan", hidden=(8,)), TD3Config(target_noise=0.0), TaskSpace(3, 1, [2.0], [0.0]), (0,))
+    agent = TD3(actor_config("dan", hidden=(8,)), TrainingConfig(target_noise=0.0), TaskSpace(3, 1, [2.0], [0.0]), (0,))
     batch = {"obs": torch.zeros(1, 4, 3), "action": torch.zeros(1, 4, 1), "reward": torch.ones(1, 4),
              "next_obs": torch.ones(1, 4, 3), "terminal": torch.tensor([[0.0, 1.0, 0.0, 1.0]])}
     with torch.no_grad():
@@ -50,8 +50,8 @@ def test_critic_target_uses_min_of_twins_and_ignores_truncation():
 
 def test_each_seed_of_an_ensemble_updates_like_a_single_run():
     config = actor_config("ilc-san", hidden=(16, 16))
-    many = TD3(config, TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (4, 11))
-    single = TD3(config, TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (11,))
+    many = TD3(config, TrainingConfig(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (4, 11))
+    single = TD3(config, TrainingConfig(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (11,))
     rng = np.random.default_rng(0)
     for _ in range(4):
         arrays = {"obs": rng.normal(size=(2, 32, 3)), "action": rng.uniform(-1, 1, (2, 32, 2)),
@@ -106,10 +106,10 @@ def test_compiled_update_program_equals_the_eager_update(preset, path):
         pytest.skip("this torch has no oneDNN")
     small = {"ilc-san": dict(hidden=(16,), population_in=4, population_out=4, timesteps=3), "dan": dict(hidden=(8,))}
     config = actor_config(preset, **small[preset])
-    td3 = TD3Config(critic_hidden=(16, 16))
+    training = TrainingConfig(critic_hidden=(16, 16))
     task = TaskSpace(3, 2, [1.0, 2.0], [0.0, 0.5])
-    eager = TD3(config, td3, task, (7, 8), ComputeSettings(matmul=MatmulPath(path)))
-    compiled = TD3(config, td3, task, (7, 8), ComputeSettings(compile=True, matmul=MatmulPath(path)))
+    eager = TD3(config, training, task, (7, 8), ComputeSettings(matmul_path=MatmulPath(path)))
+    compiled = TD3(config, training, task, (7, 8), ComputeSettings(compile=True, matmul_path=MatmulPath(path)))
     assert eager.critic_step.__func__ is TD3._critic_step  # the same function, uncompiled
     rng = np.random.default_rng(1)
     batches = [_random_batch(rng, 2, 16, 3, 2) for _ in range(12)]
@@ -125,7 +125,7 @@ def test_compiled_update_program_equals_the_eager_update(preset, path):
 
 def layer_paths(agent) -> set[str]:
     """The matmul kinds of every synaptic layer of an agent's networks."""
-    return {module.matmul.kind for network in (agent.actor, agent.critic, agent.actor_target, agent.critic_target)
+    return {module.matmul_path.kind for network in (agent.actor, agent.critic, agent.actor_target, agent.critic_target)
             for module in network.modules() if hasattr(module, "matmul")}
 
 
@@ -175,11 +175,11 @@ def interrupt_after_first_checkpoint(config, out, monkeypatch) -> None:
     monkeypatch.setattr(Trainer, "_write_checkpoints", original)
 
 
-def tiny_method_run(**td3_options) -> RunConfig:
+def tiny_method_run(**training_options) -> RunConfig:
     """Two stacked seeds on Pendulum, 450 steps, an evaluation every 150: for checking that a training method
-    (``td3_options``, e.g. ``target_actor="proxy"``) resumes exactly."""
-    td3 = dataclasses.replace(TINY_TD3, **td3_options)
-    return tiny_run(seeds=(0, 1), steps=450, td3=td3)
+    (``training_options``, e.g. ``target_actor="proxy"``) resumes exactly."""
+    training = dataclasses.replace(TINY_TRAINING, **training_options)
+    return tiny_run(seeds=(0, 1), steps=450, training=training)
 
 
 def assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch, edit=None) -> list[tuple[dict, dict]]:
@@ -329,7 +329,8 @@ def test_compiled_acting_calls_inductor_directly_and_sees_weights_changed_in_pla
     """The acting program resolves every input of the compiled graph (so it runs without dynamo's frame entry)
     and, holding the parameters themselves, acts with weights changed in place as the eager actor does."""
     config = actor_config("ilc-san", hidden=(16,), population_in=4, population_out=4, timesteps=3)
-    agent = TD3(config, TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (0, 1), ComputeSettings(compile=True))
+    agent = TD3(config, TrainingConfig(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (0, 1),
+                ComputeSettings(compile=True))
     state = np.random.default_rng(0).normal(size=(2, 3)).astype(np.float32)
     before = agent.act(state)
     (program,) = agent.actor_fn.programs.values()

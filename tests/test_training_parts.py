@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from ilcsan.config import RunConfig, TD3Config, actor_config
+from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
 from ilcsan.rl.agent_settings import TaskSpace
@@ -57,7 +57,7 @@ def test_open_for_training_refuses_an_existing_run_and_finds_a_partial_checkpoin
 
 # ------------------------------------------------------------------------------ per-seed checkpoints
 def _agent(seeds):
-    return TD3(actor_config("ilc-san", hidden=(8, 8)), TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), seeds)
+    return TD3(actor_config("ilc-san", hidden=(8, 8)), TrainingConfig(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), seeds)
 
 
 def _train_once(agent):
@@ -93,7 +93,8 @@ def test_seed_states_stack_back_into_an_ensemble_in_any_order():
     for (name, mine), (_, theirs) in zip(swapped.critic.named_parameters(), trained.critic.named_parameters(),
                                          strict=True):
         assert torch.equal(mine[:2], theirs[2:]) and torch.equal(mine[2:], theirs[:2]), name
-    other = TD3(actor_config("ilc-san", hidden=(4, 4)), TD3Config(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]), (0, 1))
+    other = TD3(actor_config("ilc-san", hidden=(4, 4)), TrainingConfig(), TaskSpace(3, 2, [1.0, 1.0], [0.0, 0.0]),
+                (0, 1))
     with pytest.raises(UserError, match="has shape"):
         other.load_seed_states(states)
 
@@ -156,7 +157,8 @@ def test_training_evaluation_runs_every_episode_together_and_equals_them_one_by_
 
     config = RunConfig(task="Hopper", seeds=(0, 1), steps=60, eval_every=10**6, eval_episodes=3,
                        actor=actor_config("ilc-san", hidden=(16, 16)),
-                       td3=TD3Config(start_steps=60, update_after=60, batch_size=16), threads=1, compile=compile_mode)
+                       training=TrainingConfig(start_steps=60, update_after=60, batch_size=16), threads=1,
+                       compile=compile_mode)
     trainer = Trainer(config, tmp_path / "run", progress=False, log=lambda *_: None)
     try:
         for _ in range(config.steps):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .config import PRESETS, ActorConfig, RunConfig, TrainingProtocol, actor_config, td3_config_class
+from .config import PRESETS, ActorConfig, RunConfig, TrainingProtocol, actor_config, deprecated, training_config_class
 from .errors import UserError
 from .version import __version__
 
@@ -24,11 +24,15 @@ def load(path, compile=False):
 
 
 def __getattr__(name: str) -> Any:
-    """``TD3Config``: the training settings of the methods registered now (:func:`ilcsan.config.td3_config_class`)."""
+    """``TrainingConfig``: the training settings of the methods registered now
+    (:func:`ilcsan.config.training_config_class`); ``TD3Config``, its deprecated name."""
+    if name == "TrainingConfig":
+        return training_config_class()
     if name == "TD3Config":
-        return td3_config_class()
+        deprecated("ilcsan.TD3Config", "ilcsan.TrainingConfig")
+        return training_config_class()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["ActorConfig", "RunConfig", "TD3Config", "TrainingProtocol", "PRESETS", "actor_config", "load", "UserError",
-           "__version__"]
+__all__ = ["ActorConfig", "RunConfig", "TrainingConfig", "TrainingProtocol", "PRESETS", "actor_config", "load",
+           "UserError", "__version__"]

@@ -18,13 +18,13 @@ from .snn.actor import DeepActor, SpikingActor
 
 def build_actor(config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
                 action_offset: Sequence[float] | None = None, seeds: Sequence[int] = (0,),
-                engine: str = "fast", matmul: MatmulPath = DEFAULT_MATMUL) -> SpikingActor | DeepActor:
+                engine: str = "fast", matmul_path: MatmulPath = DEFAULT_MATMUL) -> SpikingActor | DeepActor:
     """The actor ``config`` describes, for K = len(seeds) seeds, each initialised from its seed; ``engine``
-    ('fast' or 'reference', :data:`ilcsan.config.ENGINES`) is its forward pass, ``matmul`` where its products run; a
-    spiking actor's normalisation is the layer class its declaration names (None for ``none``)."""
+    ('fast' or 'reference', :data:`ilcsan.config.ENGINES`) is its forward pass, ``matmul_path`` where its products
+    run; a spiking actor's normalisation is the layer class its declaration names (None for ``none``)."""
     action_offset = [0.0] * action_dim if action_offset is None else action_offset
     if config.network == "deep":
-        return DeepActor(config, state_dim, action_dim, action_scale, action_offset, seeds, engine, matmul)
+        return DeepActor(config, state_dim, action_dim, action_scale, action_offset, seeds, engine, matmul_path)
     normalization = methods.declared("normalization", config.normalization).actor_layer_class()
-    return SpikingActor(config, state_dim, action_dim, action_scale, action_offset, seeds, engine, matmul,
+    return SpikingActor(config, state_dim, action_dim, action_scale, action_offset, seeds, engine, matmul_path,
                         normalization)

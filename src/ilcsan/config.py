@@ -17,12 +17,14 @@ choice list, its command-line flag where that differs from the field name. :mod:
 command line from this metadata and :func:`~ilcsan.settings.check_settings` validates against it, so a switch, its
 default and its help cannot drift apart. The training methods and algorithms (:mod:`ilcsan.methods`) declare their
 own settings, choices and help; the settings that choose them and the training settings of a run
-(:func:`td3_config_class`) are made from those declarations.
+(:func:`training_config_class`) are made from those declarations.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -251,9 +253,9 @@ def validate(config: ActorConfig) -> ActorConfig:
         raise UserError(f"the backbone needs 1 to {MAX_HIDDEN_LAYERS} hidden layers, got {len(config.hidden)}")
     if any(width < 1 for width in config.hidden):
         raise UserError(f"hidden layer widths must be at least 1, got {list(config.hidden)}")
-    if config.normalization != "none" and config.network != "spiking":
+    if config.normalization != methods.NO_NORMALIZATION and config.network != "spiking":
         raise UserError(f"--normalization {config.normalization} normalises a spiking actor's synaptic currents; "
-                        "DAN (--network deep) has none: use --normalization none")
+                        f"DAN (--network deep) has none: use --normalization {methods.NO_NORMALIZATION}")
     return config
 
 
@@ -289,8 +291,8 @@ def actor_config(preset: str = "ilc-san", **overrides: Any) -> ActorConfig:
 @dataclass(frozen=True)
 class TrainingProtocol:
     """The training settings every algorithm and method shares: TD3's hyper-parameters of the paper (Section IV-A)
-    and the authors' code. The training settings of a run (:func:`td3_config_class`, ``TD3Config``) are these and
-    every registered method's and algorithm's own (:mod:`ilcsan.methods`)."""
+    and the authors' code. The training settings of a run (:func:`training_config_class`, ``TrainingConfig``) are these
+    and every registered method's and algorithm's own (:mod:`ilcsan.methods`)."""
 
     gamma: float = 0.99  # reward discount
     tau: float = 0.005  # soft target update factor
@@ -326,24 +328,25 @@ class TrainingProtocol:
 _ASSEMBLED: dict[tuple[type, ...], type[TrainingProtocol]] = {}
 
 
-def td3_config_class() -> type[TrainingProtocol]:
-    """The training settings of a run (``TD3Config``, the ``td3`` of a :class:`RunConfig` and of config.json), a
-    frozen dataclass: the :class:`TrainingProtocol` and, kind by kind (:data:`ilcsan.methods.KINDS`), the setting
-    that chooses among a kind's declarations (``target_actor``, ``exploration``) and each registered declaration's
-    ``Settings``. Made once per set of registered declarations (the same class while they do not change)."""
+def training_config_class() -> type[TrainingProtocol]:
+    """The training settings of a run (``TrainingConfig``, the ``training`` of a :class:`RunConfig` and of
+    config.json), a frozen dataclass: the :class:`TrainingProtocol` and, kind by kind (:data:`ilcsan.methods.KINDS`),
+    the setting that chooses among a kind's declarations (``target_actor``, ``exploration``) and each registered
+    declaration's ``Settings``. Made once per set of registered declarations (the same class while they do not
+    change)."""
     registered = methods.every()
     if registered not in _ASSEMBLED:
         fields: list[tuple[str, Any, Any]] = []
         for kind in methods.KINDS:
-            if kind in methods.TD3_SELECTORS:
+            if kind in methods.KINDS_CHOSEN_BY_TRAINING:
                 fields.append((kind, str, _selector(kind)))
             for method in methods.registered(kind).values():
                 fields += method.setting_fields()
         clashes = sorted({name for name, _, _ in fields} & {item.name for item in dataclasses.fields(TrainingProtocol)})
         if clashes:
             raise ValueError(f"declared settings {', '.join(clashes)} are the protocol's")
-        assembled = dataclasses.make_dataclass("TD3Config", fields, bases=(TrainingProtocol,), frozen=True)
-        assembled.__module__, assembled.__doc__ = __name__, td3_config_class.__doc__
+        assembled = dataclasses.make_dataclass("TrainingConfig", fields, bases=(TrainingProtocol,), frozen=True)
+        assembled.__module__, assembled.__doc__ = __name__, training_config_class.__doc__
         _ASSEMBLED[registered] = assembled
     return _ASSEMBLED[registered]
 
@@ -353,13 +356,39 @@ def method_settings() -> tuple[str, ...]:
     declaration's own (a grid row's own settings, part of a run's identity in reports); the others, the
     :class:`TrainingProtocol`, every row shares."""
     protocol = {item.name for item in dataclasses.fields(TrainingProtocol)}
-    return tuple(item.name for item in dataclasses.fields(td3_config_class()) if item.name not in protocol)
+    return tuple(item.name for item in dataclasses.fields(training_config_class()) if item.name not in protocol)
+
+
+OLD_TRAINING_KEY = "td3"
+"""What config.json, checkpoints, policy.pt and grid rows written before the name ``training`` call the training
+settings; read still."""
+
+
+def saved_training(data: dict[str, Any]) -> Any:
+    """The training settings of a saved run configuration ``data``: its ``training``, or its ``td3``
+    (:data:`OLD_TRAINING_KEY`); None when it has neither."""
+    return data["training"] if "training" in data else data.get(OLD_TRAINING_KEY)
+
+
+def deprecated(old: str, new: str) -> None:
+    """Warn that the Python name ``old`` is now ``new`` (a :class:`DeprecationWarning` at the caller's caller)."""
+    warnings.warn(f"{old} is deprecated: use {new}", DeprecationWarning, stacklevel=3)
+
+
+def td3_config_class() -> type[TrainingProtocol]:
+    """Deprecated: :func:`training_config_class`."""
+    deprecated("ilcsan.config.td3_config_class", "training_config_class")
+    return training_config_class()
 
 
 def __getattr__(name: str) -> Any:
-    """``TD3Config``: the training settings of the methods registered now (:func:`td3_config_class`)."""
+    """``TrainingConfig``: the training settings of the methods registered now (:func:`training_config_class`);
+    ``TD3Config``, its deprecated name."""
+    if name == "TrainingConfig":
+        return training_config_class()
     if name == "TD3Config":
-        return td3_config_class()
+        deprecated("TD3Config", "TrainingConfig")
+        return training_config_class()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -373,7 +402,7 @@ class RunConfig:
     eval_every: int = setting(10_000, "evaluate every this many steps", minimum=1)
     eval_episodes: int = setting(10, "episodes per evaluation", minimum=1)
     actor: ActorConfig = field(default_factory=ActorConfig)
-    td3: TrainingProtocol = field(default_factory=lambda: td3_config_class()())
+    training: TrainingProtocol = field(default_factory=lambda: training_config_class()())
     algorithm: str = _selector("algorithm")
     contact_forces: str | None = setting(None, "a MuJoCo task's external contact forces. zeroed: as the paper's "
                                                "simulator read them (mujoco-py 2.1): zeros in the state and in the "
@@ -406,7 +435,7 @@ class RunConfig:
         """Whether the run compiles: when asked, or (auto) when it has enough updates to repay the compilation
         (:data:`COMPILE_PAYS_AFTER_UPDATES`); the reference engine (the literal Algorithm 1 oracle) stays eager."""
         if self.compile == "auto":
-            updates = max(0, self.steps - self.td3.update_after)
+            updates = max(0, self.steps - self.training.update_after)
             return self.engine == "fast" and updates >= COMPILE_PAYS_AFTER_UPDATES[self.actor.network]
         return self.compile == "on"
 
@@ -414,21 +443,57 @@ class RunConfig:
         """The contact forces this run's task uses (:func:`contact_forces_of`)."""
         return contact_forces_of(self.task, self.contact_forces)
 
+    @property
+    def td3(self) -> TrainingProtocol:
+        """Deprecated: :attr:`training`."""
+        deprecated("RunConfig.td3", "RunConfig.training")
+        return self.training
+
+    def recorded(self) -> RunConfig:
+        """This configuration as its config.json records it (:meth:`for_seed`) and :meth:`from_dict` reads it back:
+        the training settings its algorithm does not use (:func:`ilcsan.methods.unused_settings`) at their defaults."""
+        unused = methods.unused_settings(self.algorithm)
+        defaults = type(self.training)()
+        return dataclasses.replace(self, training=dataclasses.replace(
+            self.training, **{name: getattr(defaults, name) for name in unused}))
+
     def for_seed(self, seed: int) -> dict[str, Any]:
-        """The config.json of one seed's run."""
+        """The config.json of one seed's run; its training settings without those its algorithm does not use (SAC's
+        have no target actor and no exploration method: :func:`ilcsan.methods.unused_settings`)."""
         data = dataclasses.asdict(self)
-        data.update(seed=seed, seeds=[seed], actor=self.actor.to_dict(), td3=self.td3.to_dict(),
+        unused = methods.unused_settings(self.algorithm)
+        training = {name: value for name, value in self.training.to_dict().items() if name not in unused}
+        data.update(seed=seed, seeds=[seed], actor=self.actor.to_dict(), training=training,
                     label=self.label or self.actor.preset, contact_forces=self.task_contact_forces())
         return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunConfig:
         """The config of a saved config.json; recorded contact forces that are the task's default read as unset
-        (None), as a config made with that default holds them."""
+        (None), as a config made with that default holds them. The training settings are its ``training`` or, as
+        files written before that name hold them, its ``td3``; those it lacks (unused by its algorithm, or declared
+        since) take their defaults."""
         values = {key: value for key, value in data.items() if key in {f.name for f in dataclasses.fields(cls)}}
         values["actor"] = ActorConfig.from_dict(data["actor"])
-        values["td3"] = td3_config_class().from_dict(data["td3"])
+        values["training"] = training_config_class().from_dict(saved_training(data))
         values["seeds"] = tuple(data.get("seeds", [data.get("seed", 0)]))
         recorded, task = data.get("contact_forces", RECORDED_BEFORE_CONTACT_FORCES), values.get("task", cls.task)
         values["contact_forces"] = None if recorded == contact_forces_of(task, None) else recorded
         return cls(**values)
+
+
+_dataclass_init = RunConfig.__init__
+
+
+@functools.wraps(_dataclass_init)
+def _init_taking_td3(self: RunConfig, *args: Any, td3: TrainingProtocol | None = None, **kwargs: Any) -> None:
+    """:class:`RunConfig`'s own ``__init__``, which takes the deprecated ``td3=`` for ``training=``."""
+    if td3 is not None:
+        deprecated("RunConfig(td3=...)", "RunConfig(training=...)")
+        if "training" in kwargs:
+            raise TypeError("RunConfig() takes training= or its deprecated name td3=, not both")
+        kwargs["training"] = td3
+    _dataclass_init(self, *args, **kwargs)
+
+
+RunConfig.__init__ = _init_taking_td3  # type: ignore[method-assign]

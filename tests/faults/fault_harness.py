@@ -410,7 +410,7 @@ def grid_reference_in_process(out: Path, workers: int = 1) -> dict[str, list[str
         config = load_run_config(cell / f"seed{seeds[0]}")
         target = Path(out).parent / f"{Path(out).name}-reference" / str(index)
         stacked = RunConfig(task=config.task, seeds=tuple(seeds), steps=config.steps, eval_every=config.eval_every,
-                            eval_episodes=config.eval_episodes, actor=config.actor, td3=config.td3, threads=1)
+                            eval_episodes=config.eval_episodes, actor=config.actor, training=config.training, threads=1)
         train(stacked, target, progress=False, log=lambda *_: None)
         for seed in seeds:
             reference[str((cell / f"seed{seed}").relative_to(out))] = curve(target / f"seed{seed}")

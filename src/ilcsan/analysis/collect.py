@@ -32,8 +32,16 @@ from typing import Any
 
 import numpy as np
 
-from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig, TrainingProtocol, method_settings, td3_config_class
+from ..config import (
+    RECORDED_BEFORE_CONTACT_FORCES,
+    ActorConfig,
+    TrainingProtocol,
+    method_settings,
+    saved_training,
+    training_config_class,
+)
 from ..errors import UserError
+from ..methods import DEFAULT_ALGORITHM, unused_settings
 from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
 
@@ -58,9 +66,10 @@ class RunRecord:
     """Evaluation steps from ``metrics.csv`` (empty when it is absent)."""
     returns: tuple[float, ...]
     """``eval_return_mean`` at each of ``steps``."""
-    td3: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
-    """The run's TD3 settings as config.json holds them (empty for runs written without them)."""
-    algorithm: str = field(default="td3", hash=False, compare=False)
+    training: Mapping[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    """The run's training settings as config.json holds them (``training``, or ``td3`` in files written before that
+    name; empty for runs written without them)."""
+    algorithm: str = field(default=DEFAULT_ALGORITHM, hash=False, compare=False)
     """The off-policy algorithm that trained the actor (config.json; runs written before the choice: TD3)."""
     diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
     """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.runs.directory.DIAGNOSTICS`) at each of ``steps``,
@@ -85,7 +94,7 @@ class RunRecord:
     @property
     def stuck(self) -> bool:
         """Whether the run ended stuck in one constant saturated action (:func:`~ilcsan.snn.diagnostics.is_stuck`)."""
-        start_steps = self.td3.get("start_steps", TrainingProtocol.start_steps)
+        start_steps = self.training.get("start_steps", TrainingProtocol.start_steps)
         return is_stuck(self.evaluation_rows(), start_steps)
 
     @property
@@ -172,7 +181,7 @@ def read_run(directory: str | Path) -> RunRecord:
     run = RunDirectory(directory)
     config = run.config_object()
     task, seed, label, table, row, actor = _parse_config(config)
-    td3 = config.get("td3") if isinstance(config.get("td3"), dict) else {}
+    training = saved_training(config) if isinstance(saved_training(config), dict) else {}
     steps, columns = run.evaluation_columns()
     returns = columns.get("eval_return_mean", ())
     result = run.result()
@@ -189,7 +198,8 @@ def read_run(directory: str | Path) -> RunRecord:
     return RunRecord(
         path=run.path, task=task, seed=seed, label=label, table=table, row=row, actor=actor,
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
-        finished=finished, steps=steps, returns=returns, td3=td3, algorithm=str(config.get("algorithm") or "td3"),
+        finished=finished, steps=steps, returns=returns, training=training,
+        algorithm=str(config.get("algorithm") or DEFAULT_ALGORITHM),
         diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
         wall_seconds=_wall_seconds(result), provenance=_provenance(run),
         contact_forces=str(config.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES),
@@ -259,12 +269,16 @@ def _parse_result(result: Mapping[str, Any],
     return best_return, best_step, steps_done, steps_total, finished
 
 
-def configuration_key(actor: Mapping[str, Any], td3: Mapping[str, Any], algorithm: str = "td3") -> str:
+def configuration_key(actor: Mapping[str, Any], training: Mapping[str, Any],
+                      algorithm: str = DEFAULT_ALGORITHM) -> str:
     """Algorithm, actor settings and training method (every declared method's settings,
-    :func:`~ilcsan.config.method_settings`) as one comparable key; a setting a saved config lacks (saved before it
-    existed) counts as its default, as it does when the run is loaded."""
-    settings = td3_config_class()
-    method = {key: _current(settings, key, td3.get(key, getattr(settings, key))) for key in method_settings()}
+    :func:`~ilcsan.config.method_settings`, but those the algorithm does not use,
+    :func:`~ilcsan.methods.unused_settings`, which its config.json may or may not hold) as one comparable key; a
+    setting a saved config lacks (saved before it existed) counts as its default, as it does when the run is
+    loaded."""
+    settings, unused = training_config_class(), set(unused_settings(algorithm))
+    method = {key: _current(settings, key, training.get(key, getattr(settings, key)))
+              for key in method_settings() if key not in unused}
     return json.dumps({"algorithm": algorithm, "actor": _complete_actor(actor), "method": method}, sort_keys=True,
                       default=str)
 
@@ -289,7 +303,7 @@ def row_identity(run: RunRecord) -> tuple:
     """A grid run's row is its (table, row) tag; any other run's is its label, actor settings and method."""
     if run.table and run.row:
         return run.table, run.row
-    return run.table, run.label, configuration_key(run.actor, run.td3, run.algorithm)
+    return run.table, run.label, configuration_key(run.actor, run.training, run.algorithm)
 
 
 def _identity(run: RunRecord) -> tuple:

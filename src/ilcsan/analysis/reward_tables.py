@@ -164,7 +164,7 @@ def _rows_by_configuration(rows: Sequence[RowSpec]) -> dict[str, str]:
     keys: dict[str, list[str]] = {}
     for row in rows:
         if row.runnable and row.preset is not None:
-            key = configuration_key(actor_config(row.preset, **row.overrides).to_dict(), dict(row.td3),
+            key = configuration_key(actor_config(row.preset, **row.overrides).to_dict(), dict(row.training),
                                     row.algorithm)
             keys.setdefault(key, []).append(row.slug)
     return {key: slugs[0] for key, slugs in keys.items() if len(slugs) == 1}
@@ -203,7 +203,7 @@ def _row_of_foreign_run(run: RunRecord, groups: Mapping[str, Any], by_label: Map
     """The row of the asked table that a run not tagged with it joins, if any: an untagged run by its row slug or
     label, else by its configuration; a run of another grid by its configuration alone (its row and label name that
     grid's rows), so that a grid's ILC-SAN seeds count in Table perf's ILC-SAN cell."""
-    key = configuration_key(run.actor, run.td3, run.algorithm)
+    key = configuration_key(run.actor, run.training, run.algorithm)
     if run.table is None:
         return (run.row if run.row in groups else by_label.get(run.label)) or by_configuration.get(key)
     return by_configuration.get(key)

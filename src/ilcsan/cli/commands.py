@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import methods
-from ..config import PRESET_SUMMARIES, RunConfig, actor_config, td3_config_class
+from ..config import PRESET_SUMMARIES, RunConfig, actor_config, training_config_class
 from .train import print_results
 
 
@@ -136,7 +136,7 @@ def demo_config(task: str, steps: int, seed: int, threads: int | None):
     """The demo's run: ILC-SAN, evaluated every ``steps / 12`` steps on 5 episodes, updates from step 1000."""
     return RunConfig(task=task, seeds=(seed,), steps=steps, eval_every=max(1, steps // DEMO_EVALUATIONS),
                      eval_episodes=5, actor=actor_config("ilc-san"),
-                     td3=td3_config_class()(start_steps=1000, update_after=1000), threads=threads)
+                     training=training_config_class()(start_steps=1000, update_after=1000), threads=threads)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

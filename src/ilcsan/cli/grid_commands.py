@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from .. import load
-from ..config import RunConfig, described_fields, td3_config_class
+from ..config import RunConfig, described_fields, training_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES
 from .options import parse_seeds
@@ -21,11 +21,13 @@ def _split(text: str | None) -> tuple[str, ...] | None:
 
 
 def options_from_args(args):
-    """The grid options of parsed ``reproduce`` arguments: the run and TD3 settings are those it has options for."""
+    """The grid options of parsed ``reproduce`` arguments: the run and training settings are those it has options
+    for."""
     from ..experiments.grid import GridOptions
 
     return GridOptions(seeds=None if args.seeds is None else parse_seeds(args.seeds), tasks=_split(args.tasks),
-                       rows=_split(args.rows), run=_given(args, RunConfig), td3=_given(args, td3_config_class()))
+                       rows=_split(args.rows), run=_given(args, RunConfig),
+                       training=_given(args, training_config_class()))
 
 
 def _given(args, config_class: type) -> dict:

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..config import ActorConfig, RunConfig, actor_config, method_settings, td3_config_class
+from ..config import ActorConfig, RunConfig, actor_config, method_settings, training_config_class
 from ..errors import UserError
 from ..settings import check_settings, renamed_note
 from .options import actor_overrides, add_actor_switches, add_setting, parse_seeds
@@ -21,7 +21,7 @@ PROTOCOL_SETTINGS = ("start_steps", "update_after", "update_every", "batch_size"
 """The fields of the :class:`~ilcsan.config.TrainingProtocol` that ``train`` offers."""
 
 
-def td3_settings() -> tuple[str, ...]:
+def training_settings() -> tuple[str, ...]:
     """The training settings ``train`` offers: :data:`PROTOCOL_SETTINGS` and every method's and algorithm's
     (:func:`~ilcsan.config.method_settings`)."""
     return PROTOCOL_SETTINGS + method_settings()
@@ -64,33 +64,34 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def build_run_config(args: argparse.Namespace, task: str | None = None):
-    """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments; with ``--like``, TD3 settings that have
+    """A :class:`~ilcsan.config.RunConfig` from parsed ``train`` arguments; with ``--like``, training settings that have
     no flag (γ, τ, the critic, ...) are the liked run's."""
     like = getattr(args, "like_config", None)
-    td3 = {name: getattr(args, name) for name in td3_settings()}
-    note = renamed_note(td3_config_class(), td3)
+    training = {name: getattr(args, name) for name in training_settings()}
+    note = renamed_note(training_config_class(), training)
     if note:
         print(note, file=sys.stderr)
     config = RunConfig(
         task=task or args.task, seeds=parse_seeds(args.seeds), steps=args.steps,
         actor=actor_config(args.preset, **_actor_settings(args, like)),
-        td3=dataclasses.replace(like.td3, **td3) if like is not None else td3_config_class()(**td3),
+        training=(dataclasses.replace(like.training, **training) if like is not None
+                  else training_config_class()(**training)),
         label=getattr(args, "label", None), **{name: getattr(args, name) for name in RUN_SETTINGS},
     )
     check_settings(config)
-    check_settings(config.td3)
+    check_settings(config.training)
     return config
 
 
 def _add_run_options(parser: argparse.ArgumentParser) -> None:
-    """The seeds, the steps, :data:`RUN_SETTINGS` and the training settings (:func:`td3_settings`)."""
+    """The seeds, the steps, :data:`RUN_SETTINGS` and the training settings (:func:`training_settings`)."""
     parser.add_argument("--seeds", "--seed", dest="seeds", default="0",
                         help="seed or seeds: 0, 0-9 or 0,2,5; several seeds train together in one process")
     add_setting(parser, RunConfig, "steps")
     for name in RUN_SETTINGS:
         add_setting(parser, RunConfig, name)
-    for name in td3_settings():
-        add_setting(parser, td3_config_class(), name)
+    for name in training_settings():
+        add_setting(parser, training_config_class(), name)
 
 
 def print_results(results: list[dict[str, Any]], out: Path) -> None:
@@ -120,7 +121,7 @@ def _note_a_kept_label(config: RunConfig, like: RunConfig, path: str) -> None:
     from ..analysis.collect import configuration_key
 
     def key(run: RunConfig) -> str:
-        return configuration_key(run.actor.to_dict(), run.td3.to_dict(), run.algorithm)
+        return configuration_key(run.actor.to_dict(), run.training.to_dict(), run.algorithm)
 
     custom = like.label not in (None, like.actor.preset)  # a preset's own name is every such run's default label
     if custom and config.label == like.label and key(config) != key(like):
@@ -177,7 +178,7 @@ def like_defaults(config: RunConfig) -> dict[str, Any]:
                               "preset": config.actor.preset}
     values |= {name: getattr(config, name) for name in RUN_SETTINGS}  # contact_forces None (the task's default)
     # stays None, so that --like with another --task takes that task's default
-    values |= {name: getattr(config.td3, name) for name in td3_settings()}
+    values |= {name: getattr(config.training, name) for name in training_settings()}
     for item in dataclasses.fields(ActorConfig):
         value = getattr(config.actor, item.name)
         for part in item.metadata["switches"]:

@@ -21,6 +21,7 @@ from ..compute.programs import CompiledPerShape
 from ..config import RECORDED_BEFORE_CONTACT_FORCES, ActorConfig
 from ..errors import UserError
 from ..files import safe_torch_load
+from ..methods import DEFAULT_ALGORITHM
 from ..rl.algorithms import algorithm_class
 from ..rl.normalizer import RunningNormalizer
 from ..rl.tasks import action_bounds, make_env
@@ -203,7 +204,7 @@ def _load(path: str | Path) -> Policy:
         if data["format"] == POLICY_FORMAT:
             return _state_to_policy(data, data["actor"], file)
         if data["format"] == CHECKPOINT_FORMAT:
-            readouts = algorithm_class(data["config"].get("algorithm") or "td3").readouts
+            readouts = algorithm_class(data["config"].get("algorithm") or DEFAULT_ALGORITHM).readouts
             return _state_to_policy(_checkpoint_as_policy(data), data["actor"], file, readouts)
     except UserError:
         raise

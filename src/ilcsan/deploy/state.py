@@ -22,6 +22,7 @@ import torch
 
 from ..config import ActorConfig
 from ..errors import UserError
+from ..methods import NO_NORMALIZATION
 from ..runs.checkpoint import module_state
 
 
@@ -61,7 +62,7 @@ def masked(actor: torch.nn.Module, state: dict[str, torch.Tensor]) -> dict[str, 
 def exported_config(config: ActorConfig) -> ActorConfig:
     """The configuration of the actor an export holds: ``config`` without normalisation, since every normalisation
     is folded into the weights (:func:`fold_buffers`), so that a bundle's meta describes its arrays."""
-    return dataclasses.replace(config, normalization="none")
+    return dataclasses.replace(config, normalization=NO_NORMALIZATION)
 
 
 def export_state(actor: torch.nn.Module) -> dict[str, np.ndarray]:

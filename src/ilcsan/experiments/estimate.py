@@ -7,7 +7,7 @@ import os
 from collections.abc import Iterable
 
 from .. import methods
-from ..config import actor_config, td3_config_class
+from ..config import actor_config, training_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 
@@ -70,12 +70,12 @@ def method_step_cost(row: RowSpec) -> float:
     """What a row's training adds to its actor's time per step: the product of its algorithm's, its actor's
     normalisation's and its training methods' declared :meth:`~ilcsan.methods.Declared.relative_cost` (1 for plain
     TD3). DAN has no spiking normalisation or spiking-only method to pay for: only its algorithm counts."""
-    td3 = td3_config_class()(**row.td3)
-    algorithm = methods.declared("algorithm", row.algorithm).relative_cost(td3)
+    training = training_config_class()(**row.training)
+    algorithm = methods.declared("algorithm", row.algorithm).relative_cost(training)
     if row.preset == "dan":
         return algorithm
     normalization = methods.declared("normalization", actor_config(row.preset, **row.overrides).normalization)
-    return algorithm * normalization.relative_cost(td3) * methods.relative_cost(td3)
+    return algorithm * normalization.relative_cost(training) * methods.relative_cost(training)
 
 
 def actor_step_cost(preset: str | None, task: str) -> float:
@@ -114,7 +114,7 @@ def _row_switches(row: RowSpec) -> str:
     if not row.runnable:
         return "(the paper's numbers only; no code exists)"
     chosen = {} if row.algorithm == methods.default("algorithm") else {"algorithm": row.algorithm}
-    return " ".join(f"{key}={value}" for key, value in {**row.actor(), **chosen, **row.td3}.items())
+    return " ".join(f"{key}={value}" for key, value in {**row.actor(), **chosen, **row.training}.items())
 
 
 def describe_table(spec: TableSpec, steps_per_second: float, cores: int) -> str:

@@ -17,7 +17,7 @@ from typing import Any
 
 from .. import methods
 from ..analysis.collect import RunRecord
-from ..config import RunConfig, actor_config, check_settings, described_fields, td3_config_class
+from ..config import RunConfig, actor_config, check_settings, described_fields, training_config_class
 from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 from ..paper.published import PAPER_TASK_NAMES
@@ -39,7 +39,7 @@ class GridOptions:
     tasks: tuple[str, ...] | None = None  # the table's tasks, or any others (paper short names, Gymnasium ids)
     rows: tuple[str, ...] | None = None  # a subset of the table's row slugs
     run: Mapping[str, Any] = field(default_factory=dict)  # RunConfig settings (RUN_SETTINGS), e.g. steps, matmul
-    td3: Mapping[str, Any] = field(default_factory=dict)  # training settings (TD3Config), e.g. start_steps
+    training: Mapping[str, Any] = field(default_factory=dict)  # training settings (TrainingConfig), e.g. start_steps
 
 
 @dataclass(frozen=True)
@@ -129,23 +129,25 @@ def expand_grid(spec: TableSpec, out: str | Path, options: GridOptions | None = 
     protocol = {name: settings.pop(name) for name in PROTOCOL if name in settings}
     shrunk = dataclasses.replace(spec, tasks=tasks, rows=rows, seeds=len(seeds), **protocol)
     try:
-        td3 = td3_config_class()(**dict(options.td3))
+        training = training_config_class()(**dict(options.training))
     except TypeError as error:
-        raise UserError(f"unknown TD3 setting: {error}") from None
+        raise UserError(f"unknown training setting: {error}") from None
     out = Path(out).expanduser().absolute()
     runs = []
     for task in tasks:
         for row in rows:
             base = dataclasses.replace(RunConfig(
                 task=task, seeds=(seeds[0],), actor=actor_config(row.preset, **row.overrides), algorithm=row.algorithm,
-                td3=dataclasses.replace(td3, **row.td3), threads=1, label=row.label, table=spec.name, row=row.slug,
+                training=dataclasses.replace(training, **row.training), threads=1, label=row.label, table=spec.name,
+                row=row.slug,
                 **{name: getattr(shrunk, name) for name in PROTOCOL}), **settings)
             check_settings(base)
             try:
-                methods.check_run(task, base.algorithm, base.actor, base.td3)
+                methods.check_run(task, base.algorithm, base.actor, base.training)
             except UserError as error:
                 raise UserError(f"table {spec.name}, row {row.slug}, {task}: {error} (a grid's row takes a "
-                                f"training setting in its td3 table: `ilcsan reproduce path/to/grid.toml`)") from None
+                                f"training setting in its training table: `ilcsan reproduce path/to/grid.toml`)"
+                                ) from None
             for seed in seeds:
                 directory = out / spec.name / task_folder(task) / row.slug / f"seed{seed}"
                 runs.append(GridRun(task, row, seed, directory, dataclasses.replace(base, seeds=(seed,))))

@@ -16,13 +16,14 @@ from typing import Any
 
 from .. import methods
 from ..config import (
+    OLD_TRAINING_KEY,
     ActorConfig,
     actor_config,
     check_settings,
     described_fields,
     method_settings,
     setting_type,
-    td3_config_class,
+    training_config_class,
 )
 from ..errors import UserError
 from ..paper.layouts import EVAL_EPISODES, EVAL_EVERY, SEEDS, STEPS, TABLES, RowSpec, TableSpec
@@ -55,7 +56,7 @@ _SLUG = re.compile(r"^[a-z0-9][a-z0-9._+-]*$")
 _GYM_ID = re.compile(r"^(?:[A-Za-z0-9_.-]+[:/])?[A-Za-z][A-Za-z0-9_.-]*-v\d+$")
 
 _TOP_KEYS = tuple(item.name for item in dataclasses.fields(TableSpec))  # name, caption, tasks, rows, protocol
-_ROW_KEYS = ("slug", "label", "preset", "overrides", "algorithm", "td3")
+_ROW_KEYS = ("slug", "label", "preset", "overrides", "algorithm", "training")
 
 
 def is_task_name(task: str) -> bool:
@@ -71,8 +72,9 @@ def load_grid(path: str | Path) -> TableSpec:
     required; ``caption``, ``seeds`` (10), ``steps`` (1 000 000), ``eval_every`` (10 000) and
     ``eval_episodes`` (10) are optional. Each row has a unique ``slug``, a ``preset``, an optional
     ``label`` (defaults to the slug), optional ``overrides`` of the actor switches, an optional ``algorithm``
-    (``td3``, the default, ``ddpg`` or ``sac``: any registered one) and an optional ``td3`` table of the settings that
-    choose or tune a training method (``target_actor = "proxy"``, ``preaction_penalty = 0.1``, ...)::
+    (``td3``, the default, ``ddpg`` or ``sac``: any registered one) and an optional ``training`` table of the settings
+    that choose or tune a training method (``target_actor = "proxy"``, ``preaction_penalty = 0.1``, ...; grids written
+    before that name call it ``td3``, read still)::
 
         name = "intra-small"
         caption = "Intra-layer ablation on two tasks, 3 seeds"
@@ -128,10 +130,10 @@ def grid_from_dict(data: Mapping[str, Any], source: str = "grid") -> TableSpec:
         raise UserError(f"{source}: caption must be a string, got {caption!r}")
     tasks, rows = _tasks(data["tasks"], source), _rows(data["rows"], source)
     for index, row in enumerate(rows):
-        actor, td3 = actor_config(row.preset, **row.overrides), td3_config_class()(**row.td3)
+        actor, training = actor_config(row.preset, **row.overrides), training_config_class()(**row.training)
         for task in tasks:
             try:
-                methods.check_run(task, row.algorithm, actor, td3)
+                methods.check_run(task, row.algorithm, actor, training)
             except UserError as error:
                 raise UserError(f"{source}: rows[{index}] on {task}: {error}") from None
     return TableSpec(
@@ -192,6 +194,10 @@ def _rows(value: Any, source: str) -> tuple[RowSpec, ...]:
 
 
 def _row_from_dict(item: Any, where: str) -> RowSpec:
+    if isinstance(item, Mapping) and OLD_TRAINING_KEY in item:  # a row written before the name ``training``
+        if "training" in item:
+            raise UserError(f"{where}: give the training table once, as training (td3 is its old name)")
+        item = {("training" if key == OLD_TRAINING_KEY else key): value for key, value in item.items()}
     _check_keys(item, _ROW_KEYS, where)
     if "slug" not in item or "preset" not in item:
         raise UserError(f"{where}: every row needs a 'slug' and a 'preset'")
@@ -206,7 +212,7 @@ def _row_from_dict(item: Any, where: str) -> RowSpec:
         raise UserError(f"{where}: label must be a non-empty string, got {label!r}")
     return RowSpec(slug=slug, label=label, preset=preset,
                    overrides=_row_actor(preset, item.get("overrides", {}), f"{where}: overrides"),
-                   algorithm=_row_algorithm(item, where), td3=_row_td3(item, where))
+                   algorithm=_row_algorithm(item, where), training=_row_training(item, where))
 
 
 def _row_algorithm(item: Mapping[str, Any], where: str) -> str:
@@ -243,16 +249,16 @@ def _typed(key: str, value: Any, kind: type, where: str) -> Any:
     return float(value) if kind is float else value
 
 
-def _row_td3(item: Mapping[str, Any], where: str) -> dict[str, Any]:
-    """A row's ``td3`` table (its training method), checked against the declared settings: a row may set the
+def _row_training(item: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """A row's ``training`` table (its training method), checked against the declared settings: a row may set the
     training settings that choose or tune a method (:func:`~ilcsan.config.method_settings`); the grid's others are
     shared. Whether its methods suit its actor, its algorithm and each task is checked with the grid's tasks
     (:func:`grid_from_dict`), and again run by run with the settings a grid's command adds
     (:func:`~ilcsan.experiments.grid.expand_grid`)."""
-    td3 = item.get("td3", {})
-    _check_keys(td3, method_settings(), f"{where}: td3")
+    training = item.get("training", {})
+    _check_keys(training, method_settings(), f"{where}: training")
     try:
-        check_settings(td3_config_class()(**td3))
+        check_settings(training_config_class()(**training))
     except (UserError, TypeError) as error:
-        raise UserError(f"{where}: td3: {error}") from None
-    return dict(td3)
+        raise UserError(f"{where}: training: {error}") from None
+    return dict(training)

@@ -60,8 +60,8 @@ def run_state(directory: Path, config: RunConfig) -> RunState:
 
 def check_same_settings(directory: Path, config: RunConfig) -> None:
     """UserError unless the run in ``directory`` was started with ``config``'s settings."""
-    saved = RunDirectory(directory).run_config()
-    differing = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(config, name)]
+    saved, recorded = RunDirectory(directory).run_config(), config.recorded()
+    differing = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(recorded, name)]
     if differing:
         raise UserError(f"{directory} was run with other settings ({', '.join(differing)}) than this grid; "
                         "repeat the options it was started with, or choose another --out")
@@ -186,7 +186,7 @@ def seed_replay_bytes(task: str, config: RunConfig) -> int:
         env = make_env(task)
         state_dim, action_dim = int(env.observation_space.shape[0]), int(env.action_space.shape[0])
         env.close()
-    return replay_bytes(state_dim, action_dim, min(config.td3.replay_size, config.steps))
+    return replay_bytes(state_dim, action_dim, min(config.training.replay_size, config.steps))
 
 
 def max_seeds_per_job(grid: Grid, slots: int, memory: int | None = None) -> int | None:

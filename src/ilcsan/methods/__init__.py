@@ -2,27 +2,31 @@
 
 A declaration (:class:`~ilcsan.methods.declaration.Declared`) is everything the package knows of a method or an
 algorithm before it trains: its name and paper, its settings, its cost and the matrix products it adds. From the
-registry come the training settings' fields and choices (:func:`ilcsan.config.td3_config_class`), the ``train``
+registry come the training settings' fields and choices (:func:`ilcsan.config.training_config_class`), the ``train``
 command line, grid rows' keys, a run's identity in reports, ``ilcsan actors``, the estimates of ``reproduce --list``
 and the products a run's matmul path is measured on. Its training (the hooks, with torch) is in
 :mod:`ilcsan.rl.methods` and :mod:`ilcsan.rl.algorithms`, imported only when a run trains, so that this package, the
 configuration and the command line stay torch-free.
 
-Adding a method: a module here with its declaration (and a module of its hooks beside the others), and one line
-below. The first declaration registered of a kind is that kind's default, the ILC-SAN paper's choice.
+Adding a method: a module here with its declaration, named ``<Method>Declaration`` (its hooks, a module beside the
+others, are the class named ``<Method>``), and one line below. The first declaration registered of a kind is that
+kind's default, the ILC-SAN paper's choice (:data:`DEFAULT_ALGORITHM`, :data:`NO_NORMALIZATION` name two).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 from ..errors import UserError
 from . import care_bn, defaults, noisysan, preaction_penalty, proxy_target, sac, td3
-from .declaration import KINDS, TD3_SELECTORS, Declared, MethodProducts
+from .declaration import KINDS, KINDS_CHOSEN_BY_TRAINING, Declared, MethodProducts
+from .defaults import DEFAULT_ALGORITHM, NO_NORMALIZATION
 
-__all__ = ["KINDS", "TD3_SELECTORS", "Declared", "MethodProducts", "check_run", "declared", "default", "either",
-           "every", "of_run", "papers", "register", "registered", "relative_cost", "selected", "unregister"]
+__all__ = ["DEFAULT_ALGORITHM", "KINDS", "KINDS_CHOSEN_BY_TRAINING", "NO_NORMALIZATION", "Declared", "MethodProducts",
+           "check_run", "declared", "default", "either", "every", "of_run", "papers", "register", "registered",
+           "relative_cost", "selected", "unregister", "unused_settings"]
 
 _REGISTRY: dict[str, dict[str, type[Declared]]] = {kind: {} for kind in KINDS}
 
@@ -84,51 +88,76 @@ def either(kind: str) -> str:
     return phrases[0] if len(phrases) == 1 else f"{', '.join(phrases[:-1])}, or {phrases[-1]}"
 
 
-def selected(td3: Any, kinds: tuple[str, ...] = ("loss_term", *TD3_SELECTORS)) -> list[type[Declared]]:
-    """The methods of ``kinds`` that training settings ``td3`` choose: the loss terms they weigh above 0, the target
-    actor and the exploration."""
-    return [method for kind in kinds for method in _REGISTRY[kind].values() if method.active(td3)]
+def selected(training: Any,
+             kinds: tuple[str, ...] = ("loss_term", *KINDS_CHOSEN_BY_TRAINING)) -> list[type[Declared]]:
+    """The methods of ``kinds`` that training settings ``training`` choose: the loss terms they weigh above 0, the
+    target actor and the exploration."""
+    return [method for kind in kinds for method in _REGISTRY[kind].values() if method.active(training)]
+
+
+def unused_settings(algorithm: str) -> tuple[str, ...]:
+    """The training settings a run of ``algorithm`` does not use, which its config.json leaves out: for an algorithm
+    with its ``own_exploration`` (SAC), the settings that choose a target actor and an exploration
+    (:data:`KINDS_CHOSEN_BY_TRAINING`) and the settings of every declaration of those kinds; none for the others and
+    for an algorithm not registered."""
+    trainer = _REGISTRY["algorithm"].get(algorithm)
+    if trainer is None or not trainer.own_exploration:
+        return ()
+    unused: list[str] = []
+    for kind in KINDS_CHOSEN_BY_TRAINING:
+        unused += [kind, *(name for method in _REGISTRY[kind].values() for name, _, _ in method.setting_fields())]
+    return tuple(unused)
 
 
 def of_run(config: Any) -> list[type[Declared]]:
     """Every declaration a run (a :class:`~ilcsan.config.RunConfig`) trains with: its algorithm, its actor's
     normalisation and :func:`selected`."""
     return [_REGISTRY["algorithm"][config.algorithm], _REGISTRY["normalization"][config.actor.normalization],
-            *selected(config.td3)]
+            *selected(config.training)]
 
 
-def relative_cost(td3: Any) -> float:
-    """The time of a training step with the methods ``td3`` chooses over a plain step's (their costs multiply)."""
-    return math.prod(method.relative_cost(td3) for method in selected(td3))
+def relative_cost(training: Any) -> float:
+    """The time of a training step with the methods ``training`` chooses over a plain step's (their costs multiply)."""
+    return math.prod(method.relative_cost(training) for method in selected(training))
 
 
-def check_run(task: str, algorithm: str, actor: Any, td3: Any) -> None:
+def check_run(task: str, algorithm: str, actor: Any, training: Any) -> None:
     """:class:`~ilcsan.errors.UserError` for a run on ``task`` that its declarations cannot train: the algorithm's own
     refusals first (an algorithm with its ``own_exploration``, SAC, refuses TD3's target actors and explorations),
     then a method chosen for a deep actor (DAN) that needs a spiking one (``spiking_only``), then the refusals of the
     actor's normalisation, the loss terms, the target actor and the exploration (:meth:`Declared.check`). ``actor``:
-    an :class:`~ilcsan.config.ActorConfig` (its ``network`` and ``normalization``); ``td3``: the training settings."""
+    an :class:`~ilcsan.config.ActorConfig` (its ``network`` and ``normalization``); ``training``: the training
+    settings."""
     trainer = declared("algorithm", algorithm)
-    for kind in TD3_SELECTORS if trainer.own_exploration else ():
-        method = declared(kind, getattr(td3, kind))
+    for kind in KINDS_CHOSEN_BY_TRAINING if trainer.own_exploration else ():
+        method = declared(kind, getattr(training, kind))
         if method.name != default(kind):
             takers = " and ".join(other.title for other in _REGISTRY["algorithm"].values() if not other.own_exploration)
             raise UserError(f"{method.option()} is a method for {takers}; {trainer.own_exploration}: drop "
                             f"{method.flag()}, or use --algorithm {default('algorithm')}")
-    trainer.check(task, td3)
-    chosen = [declared("normalization", actor.normalization), *selected(td3)]
+    trainer.check(task, training)
+    chosen = [declared("normalization", actor.normalization), *selected(training)]
     if actor.network != "spiking":
         for method in chosen:
             if method.spiking_only:
                 raise UserError(f"{method.option()} is a training method for spiking actors "
                                 f"({method.spiking_reason}); DAN trains with TD3's own: drop {method.flag()} for DAN")
     for method in chosen:
-        method.check(task, td3)
+        method.check(task, training)
 
 
-for _method in (td3.TD3, td3.DDPG, sac.SAC,
-                defaults.PolyakTarget, proxy_target.ProxyTarget,
-                defaults.GaussianActionNoise, noisysan.NoisySAN,
-                defaults.NoNormalization, care_bn.CareBN,
-                preaction_penalty.PreactionPenalty):
+for _method in (td3.TD3Declaration, td3.DDPGDeclaration, sac.SACDeclaration,
+                defaults.PolyakTargetDeclaration, proxy_target.ProxyTargetDeclaration,
+                defaults.GaussianActionNoiseDeclaration, noisysan.NoisySANDeclaration,
+                defaults.NoNormalizationDeclaration, care_bn.CareBNDeclaration,
+                preaction_penalty.PreactionPenaltyDeclaration):
     register(_method)
+
+
+def __getattr__(name: str) -> Any:
+    """``TD3_SELECTORS``, the deprecated name of :data:`KINDS_CHOSEN_BY_TRAINING`."""
+    if name == "TD3_SELECTORS":
+        warnings.warn("ilcsan.methods.TD3_SELECTORS is deprecated: use KINDS_CHOSEN_BY_TRAINING", DeprecationWarning,
+                      stacklevel=2)
+        return KINDS_CHOSEN_BY_TRAINING
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

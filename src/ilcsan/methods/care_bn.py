@@ -8,7 +8,7 @@ from ..errors import UserError
 from .declaration import Declared
 
 
-class CareBN(Declared):
+class CareBNDeclaration(Declared):
     kind, name, title = "normalization", "care-bn", "CaRe-BN"
     paper = ("CaRe-BN (Xu et al., ICLR 2026): batch normalisation of each synaptic layer's current, pooled over the "
              "batch and the T steps; batch statistics in the actor's loss, running statistics (Kalman-style gain, "
@@ -27,7 +27,7 @@ class CareBN(Declared):
     Kalman update), and ≈ 8 % more for its recalibration every 5 000 steps (``benchmarks/recalibration.py``)."""
 
     @classmethod
-    def check(cls, task: str, td3) -> None:
-        if td3.batch_size < 2:
+    def check(cls, task: str, training) -> None:
+        if training.batch_size < 2:
             raise UserError(f"--normalization care-bn estimates its statistics from the minibatch: --batch-size must "
-                            f"be at least 2, got {td3.batch_size}")
+                            f"be at least 2, got {training.batch_size}")

@@ -13,11 +13,11 @@ KINDS: tuple[str, ...] = ("loss_term", "target_actor", "exploration", "normaliza
 """The kinds of declaration, in the order their settings follow the protocol's in the training settings:
 
 - ``loss_term``: a term added to the actor's loss, on when its weight setting is above 0 (any number at once);
-- ``target_actor``: the actor π' in TD3's and DDPG's target values, chosen by ``td3.target_actor``;
-- ``exploration``: how TD3 and DDPG explore, chosen by ``td3.exploration``;
+- ``target_actor``: the actor π' in TD3's and DDPG's target values, chosen by ``training.target_actor``;
+- ``exploration``: how TD3 and DDPG explore, chosen by ``training.exploration``;
 - ``normalization``: what training does for the actor's normalisation, chosen by ``actor.normalization``;
 - ``algorithm``: the off-policy algorithm, chosen by ``algorithm``."""
-TD3_SELECTORS: tuple[str, ...] = ("target_actor", "exploration")
+KINDS_CHOSEN_BY_TRAINING: tuple[str, ...] = ("target_actor", "exploration")
 """The kinds chosen by a training setting of the same name (the others: by the actor's ``normalization``, the run's
 ``algorithm``, a loss term's weight)."""
 
@@ -52,15 +52,16 @@ class Declared:
     ``option_help``, its part of the help of the setting that chooses it; ``renamed``, its earlier names, still
     accepted. ``Settings``: a frozen dataclass of its own settings, each declared with
     :func:`~ilcsan.settings.setting` (help, default, bounds, flag), which join the training settings
-    (:func:`ilcsan.config.td3_config_class`), the ``train`` command line, grid rows and a run's identity in reports.
-    ``step_cost``: a training step's time with it over a plain step's, as measured (``benchmarks/methods.py``);
-    ``relative_cost(td3)`` returns it, or computes the ratio from settings when it depends on them; ``cost_note``, the
-    same as a phrase for ``reproduce --list`` (from ``step_cost`` unless given; "" when it costs nothing extra).
-    ``products(td3, state_dim, action_dim, products)``: what it changes in a step's matrix products
+    (:func:`ilcsan.config.training_config_class`), the ``train`` command line, grid rows and a run's identity in
+    reports. ``step_cost``: a training step's time with it over a plain step's, as measured
+    (``benchmarks/methods.py``); ``relative_cost(training)`` returns it, or computes the ratio from settings when it
+    depends on them; ``cost_note``, the same as a phrase for ``reproduce --list`` (from ``step_cost`` unless given;
+    "" when it costs nothing extra).
+    ``products(training, state_dim, action_dim, products)``: what it changes in a step's matrix products
     (:class:`MethodProducts`). ``spiking_only`` and ``spiking_reason``: it needs a spiking actor, and why.
-    ``check(task, td3)``: raise :class:`~ilcsan.errors.UserError` for settings it cannot train with. ``training``: its
-    hooks (:mod:`ilcsan.rl.methods`, :mod:`ilcsan.rl.algorithms`), as ``module:Class``, imported when a run trains
-    (torch), or the class itself.
+    ``check(task, training)``: raise :class:`~ilcsan.errors.UserError` for settings it cannot train with.
+    ``training``: its hooks (:mod:`ilcsan.rl.methods`, :mod:`ilcsan.rl.algorithms`), as ``module:Class``, imported
+    when a run trains (torch), or the class itself.
     """
 
     kind: ClassVar[str]
@@ -90,24 +91,25 @@ class Declared:
             cls.cost_note = f"{cls.step_cost:g}"
 
     @classmethod
-    def relative_cost(cls, td3: Any) -> float:
+    def relative_cost(cls, training: Any) -> float:
         return cls.step_cost
 
     @classmethod
-    def products(cls, td3: Any, state_dim: int, action_dim: int, products: MethodProducts) -> None:
+    def products(cls, training: Any, state_dim: int, action_dim: int, products: MethodProducts) -> None:
         return None
 
     @classmethod
-    def check(cls, task: str, td3: Any) -> None:
+    def check(cls, task: str, training: Any) -> None:
         return None
 
     @classmethod
-    def active(cls, td3: Any) -> bool:
-        """Whether a run with training settings ``td3`` uses it: a loss term when its weight is above 0, a chosen kind
-        when chosen (algorithms and normalisations are chosen outside ``td3``: see :func:`ilcsan.methods.of_run`)."""
+    def active(cls, training: Any) -> bool:
+        """Whether a run with training settings ``training`` uses it: a loss term when its weight is above 0, a chosen
+        kind when chosen (algorithms and normalisations are chosen outside ``training``: see
+        :func:`ilcsan.methods.of_run`)."""
         if cls.kind == "loss_term":
-            return getattr(td3, cls.weight) > 0
-        return getattr(td3, cls.kind) == cls.name
+            return getattr(training, cls.weight) > 0
+        return getattr(training, cls.kind) == cls.name
 
     @classmethod
     def flag(cls) -> str:

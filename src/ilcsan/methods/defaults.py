@@ -6,8 +6,15 @@ from __future__ import annotations
 
 from .declaration import Declared
 
+DEFAULT_ALGORITHM = "td3"
+"""The algorithm of a run, a grid row or a saved file that names none: TD3, the paper's
+(:class:`~ilcsan.methods.td3.TD3Declaration`)."""
+NO_NORMALIZATION = "none"
+"""The normalisation that leaves the synaptic currents as they are, the paper's (:class:`NoNormalizationDeclaration`);
+an exported actor's, its normalisation folded into the weights."""
 
-class PolyakTarget(Declared):
+
+class PolyakTargetDeclaration(Declared):
     kind, name, title = "target_actor", "polyak", "the Polyak-averaged target actor"
     paper = "the Polyak-averaged (soft-updated) copy of the actor (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
     option_help = "polyak, the Polyak-averaged copy of the actor (the paper)"
@@ -15,15 +22,15 @@ class PolyakTarget(Declared):
     training = "ilcsan.rl.algorithms.td3:PolyakTarget"
 
 
-class GaussianActionNoise(Declared):
+class GaussianActionNoiseDeclaration(Declared):
     kind, name, title = "exploration", "gaussian", "Gaussian action noise"
     paper = "Gaussian noise on the action (TD3, Fujimoto et al. 2018; the ILC-SAN paper)"
     option_help = "TD3's Gaussian action noise (the paper)"
     training = "ilcsan.rl.algorithms.td3:GaussianActionNoise"
 
 
-class NoNormalization(Declared):
-    kind, name, title = "normalization", "none", "no normalisation"
+class NoNormalizationDeclaration(Declared):
+    kind, name, title = "normalization", NO_NORMALIZATION, "no normalisation"
     paper = "the synaptic current W S + b reaches the neurons as it is (the ILC-SAN paper)"
     option_help = "none (the paper)"
     training = "ilcsan.rl.methods.base:Normalization"

@@ -18,10 +18,10 @@ RETURN_REFERENCE: dict[str, float] = {
 the weight of the noise penalty is k = max(0, R)/R*, R the latest evaluation's mean return."""
 
 
-def return_reference(task: str, td3) -> float:
+def return_reference(task: str, training) -> float:
     """R* of the penalty weight: ``--noisy-return-reference`` if given, else NoisySAN's value for a paper task."""
-    if td3.noisy_return_reference is not None:
-        return float(td3.noisy_return_reference)
+    if training.noisy_return_reference is not None:
+        return float(training.noisy_return_reference)
     known = {name.lower(): value for name, value in RETURN_REFERENCE.items()}
     if task.lower() in known:
         return known[task.lower()]
@@ -29,7 +29,7 @@ def return_reference(task: str, td3) -> float:
                     f"penalty reaches full weight; NoisySAN's values: Hopper 4000, Ant 6000, HalfCheetah 12000)")
 
 
-class NoisySAN(Declared):
+class NoisySANDeclaration(Declared):
     kind, name, title = "exploration", "noisy", "NoisySAN"
     paper = ("NoisySAN: coloured noise in every spiking layer's charge and spike transmission and in the decoder, "
              "with a learned decoder noise scale (Chen et al., arXiv 2403.04162)")
@@ -54,5 +54,5 @@ class NoisySAN(Declared):
                   "tasks)", bounds="positive")
 
     @classmethod
-    def check(cls, task: str, td3) -> None:
-        return_reference(task, td3)
+    def check(cls, task: str, training) -> None:
+        return_reference(task, training)

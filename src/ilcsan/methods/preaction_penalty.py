@@ -11,7 +11,7 @@ from ..settings import setting
 from .declaration import Declared
 
 
-class PreactionPenalty(Declared):
+class PreactionPenaltyDeclaration(Declared):
     kind, name, title = "loss_term", "preaction-penalty", "the pre-action penalty"
     paper = ("a penalty λ·mean(O²) on the actor's pre-tanh output O (SAC: the mean's) in the actor's loss, which "
              "pulls a saturated actor back into tanh's range (this package's remedy for the saturated start, "

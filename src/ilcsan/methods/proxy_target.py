@@ -15,7 +15,7 @@ COST_PER_ITERATION = 0.6
 """A training step's time grows by this fraction of a plain step per regression step (``proxy_iterations``)."""
 
 
-class ProxyTarget(Declared):
+class ProxyTargetDeclaration(Declared):
     kind, name, title = "target_actor", "proxy", "Proxy Target"
     paper = "Proxy Target: a continuous proxy fitted to the online actor (Xu et al., NeurIPS 2025, arXiv 2505.24161)"
     option_help = ("proxy, Proxy Target's continuous proxy imitating the online actor (Xu et al. 2025; spiking actors "
@@ -32,15 +32,15 @@ class ProxyTarget(Declared):
         proxy_lr: float = setting(1e-3, "Proxy Target: the proxy's Adam learning rate", bounds="positive")
 
     @classmethod
-    def relative_cost(cls, td3) -> float:
-        return 1.0 + COST_PER_ITERATION * td3.proxy_iterations
+    def relative_cost(cls, training) -> float:
+        return 1.0 + COST_PER_ITERATION * training.proxy_iterations
 
     @classmethod
-    def products(cls, td3, state_dim: int, action_dim: int, products: MethodProducts) -> None:
+    def products(cls, training, state_dim: int, action_dim: int, products: MethodProducts) -> None:
         """Per update: the online actor's forward over the K·B states of the K regression steps (their targets), the
         proxy's three products K times (its fit) and its forward once more, as π' giving the next actions in place
         of the actor's copy."""
         products.next_actions_by_actor = 0.0
-        products.actor_forwards.append((td3.batch_size * td3.proxy_iterations, 1.0))
-        products.networks.append(((state_dim, *PROXY_HIDDEN, action_dim), td3.batch_size,
-                                  float(td3.proxy_iterations), 1.0))
+        products.actor_forwards.append((training.batch_size * training.proxy_iterations, 1.0))
+        products.networks.append(((state_dim, *PROXY_HIDDEN, action_dim), training.batch_size,
+                                  float(training.proxy_iterations), 1.0))

@@ -8,7 +8,7 @@ from ..settings import setting
 from .declaration import Declared
 
 
-class SAC(Declared):
+class SACDeclaration(Declared):
     kind, name, title = "algorithm", "sac", "SAC"
     paper = ("SAC (Haarnoja et al. 2018, arXiv 1812.05905): the output populations decode a mean and a log-std of a "
              "tanh-squashed Gaussian, twin critics, automatic entropy tuning; acts deterministically when evaluated")

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..config import INTRA_VARIANTS, MAX_HIDDEN_LAYERS, RunConfig
+from ..methods import DEFAULT_ALGORITHM
 from . import published
 from .published import PaperTable
 
@@ -43,9 +44,9 @@ class RowSpec:
     preset: str | None
     overrides: Mapping[str, Any] = field(default_factory=dict, hash=False)
     runnable: bool = True
-    td3: Mapping[str, Any] = field(default_factory=dict, hash=False)
-    """TD3 settings of this row (training methods such as ``target_actor``), over the grid's own."""
-    algorithm: str = "td3"
+    training: Mapping[str, Any] = field(default_factory=dict, hash=False)
+    """Training settings of this row (training methods such as ``target_actor``), over the grid's own."""
+    algorithm: str = DEFAULT_ALGORITHM
     """The off-policy algorithm that trains this row's actor (``--algorithm``; :mod:`ilcsan.methods`)."""
     published: tuple[str, str] | None = None
     """In a grid that is not a table of the paper: the paper's (table, row) that ran this same actor and method,

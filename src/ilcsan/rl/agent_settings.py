@@ -33,13 +33,13 @@ class TaskSpace:
 @dataclass(frozen=True)
 class ComputeSettings:
     """Where an agent computes: its ``device``; ``compile``, each update as one compiled program and a spiking actor's
-    acting pass compiled; ``engine``, the actor's forward pass ('fast' or 'reference'); ``matmul``, where every
+    acting pass compiled; ``engine``, the actor's forward pass ('fast' or 'reference'); ``matmul_path``, where every
     network's products run."""
 
     device: str | torch.device = "cpu"
     compile: bool = False
     engine: str = "fast"
-    matmul: MatmulPath = DEFAULT_MATMUL
+    matmul_path: MatmulPath = DEFAULT_MATMUL
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "device", torch.device(self.device))

@@ -65,7 +65,7 @@ def best_so_far(evaluations: list[list[dict[str, float]]]) -> str:
 
 def stuck_seeds(trainer: Any) -> list[int]:
     """Indices of the seeds that are stuck (:func:`~ilcsan.snn.diagnostics.is_stuck`) at their last evaluation."""
-    start = trainer.config.td3.start_steps
+    start = trainer.config.training.start_steps
     return [index for index, rows in enumerate(trainer.evaluations) if is_stuck(rows, start)]
 
 

@@ -42,12 +42,12 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
     every update; the three products of the critics the actor loss evaluates (every d-th update). Then the products
     of the methods' own networks."""
     algorithm = algorithm_class(config.algorithm)
-    seeds, td3, actor = len(config.seeds), config.td3, config.actor
-    batch = td3.batch_size
+    seeds, training, actor = len(config.seeds), config.training, config.actor
+    batch = training.batch_size
     changes = methods.MethodProducts()
     for method in methods.of_run(config):
-        method.products(td3, state_dim, action_dim, changes)
-    delayed = 1.0 / algorithm.policy_delay(td3)
+        method.products(training, state_dim, action_dim, changes)
+    delayed = 1.0 / algorithm.policy_delay(training)
     evaluations = 1.0 / config.eval_every
     timesteps = actor.timesteps if actor.network == "spiking" else 1
     counts: dict[Product, float] = {}
@@ -67,7 +67,7 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
         for rows, times in forward_rows:
             add(layer_products(seeds, steps * rows, d_in, d_out)[:1], times)
         add(layer_products(seeds, steps * DIAGNOSTIC_STATES, d_in, deployed_out)[:1], evaluations)
-    for d_in, d_out in pairwise([state_dim + action_dim, *td3.critic_hidden, 1]):
+    for d_in, d_out in pairwise([state_dim + action_dim, *training.critic_hidden, 1]):
         every = layer_products(algorithm.critics * seeds, batch, d_in, d_out)
         add(every, 1.0)
         add(every[:1], 1.0)

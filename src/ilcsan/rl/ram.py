@@ -19,7 +19,7 @@ def memory_estimate(config: RunConfig, state_dim: int, action_dim: int) -> dict[
     """A lower bound of the bytes a run needs: networks (weights, targets, gradients, Adam's two moments),
     one update's activations (measured: 5-14x the layers' outputs over T steps; 4x is counted) and the
     full replay buffers. Used to refuse, before anything starts, a run that cannot fit in memory."""
-    actor, td3, seeds = config.actor, config.td3, len(config.seeds)
+    actor, training, seeds = config.actor, config.training, len(config.seeds)
     algorithm = algorithm_class(config.algorithm)
     sizes = actor.layer_sizes(state_dim, algorithm.readouts * action_dim)
     if actor.network == "deep":
@@ -27,14 +27,14 @@ def memory_estimate(config: RunConfig, state_dim: int, action_dim: int) -> dict[
     else:  # intra-layer weights and biases, decoder, encoder centres and widths
         timesteps = actor.timesteps
         extra = algorithm.readouts * action_dim * actor.population_out * (actor.population_out + 3) + 2 * sizes[0]
-    critic = [state_dim + action_dim, *td3.critic_hidden, 1]
+    critic = [state_dim + action_dim, *training.critic_hidden, 1]
 
     def parameters(widths: list[int]) -> int:
         return sum(a * b + b for a, b in zip(widths[:-1], widths[1:], strict=False))
 
     weights = 4 * seeds * 5 * (parameters(sizes) + extra + algorithm.critics * parameters(critic))
-    activations = 4 * 4 * seeds * td3.batch_size * timesteps * sum(sizes)
-    replay = seeds * replay_bytes(state_dim, action_dim, min(td3.replay_size, config.steps))
+    activations = 4 * 4 * seeds * training.batch_size * timesteps * sum(sizes)
+    replay = seeds * replay_bytes(state_dim, action_dim, min(training.replay_size, config.steps))
     return {"networks": weights + activations, "replay": replay}
 
 

@@ -41,11 +41,12 @@ def set_up(run, resume: bool, progress: bool | None) -> None:
     locks, resumable = open_for_training(run.directories, resume, log)
     run.locks.extend(locks)
     kept = kept_matmul_path(run) if resumable else None
-    matmul, run.matmul = kept or choose_matmul_path(config, state_dim, action_dim, environments.episode_steps)
-    log(describe_matmul_choice(run.matmul))
+    matmul_path, run.matmul_choice = kept or choose_matmul_path(config, state_dim, action_dim,
+                                                                environments.episode_steps)
+    log(describe_matmul_choice(run.matmul_choice))
     run.agent = build_algorithm(config, state_dim, action_dim, environments.action_scale, environments.action_offset,
-                                environments.episode_steps, matmul)
-    run.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim, min(config.td3.replay_size, config.steps))
+                                environments.episode_steps, matmul_path)
+    run.replay = ReplayBuffer(len(config.seeds), state_dim, action_dim, min(config.training.replay_size, config.steps))
     run.normalizer = RunningNormalizer(len(config.seeds), state_dim)
     run.rngs = [np.random.default_rng(seed) for seed in config.seeds]
     run.step, run.wall_seconds = 0, 0.0
@@ -55,7 +56,8 @@ def set_up(run, resume: bool, progress: bool | None) -> None:
         run.checkpoints.restore(run, config, state_dim, action_dim)
     else:
         start(run)
-    run.checkpoints.record_provenance(provenance.collect(run.step, config.matmul, run.matmul["path"], config.device))
+    run.checkpoints.record_provenance(provenance.collect(run.step, config.matmul, run.matmul_choice["path"],
+                                                         config.device))
     run.callbacks = Callbacks(TensorBoardLog([directory.tensorboard_folder() for directory in run.directories],
                                              run.step),
                               ProgressReport(sys.stderr.isatty() if progress is None else progress, log))
@@ -74,4 +76,4 @@ def start(run) -> None:
     """Step 0 of a new run: the first episodes and each seed's config.json."""
     run.environments.start()
     run.normalizer.update(run.environments.observations)
-    run.checkpoints.write_configs(run.config, {"matmul_path": run.matmul})
+    run.checkpoints.write_configs(run.config, {"matmul_path": run.matmul_choice})

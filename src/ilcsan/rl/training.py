@@ -108,7 +108,7 @@ class Trainer:
         seed's transition to that seed's rows, first in first out beyond ``min(replay_size, steps)`` rows.
         ``normalizer.update`` adds observations to each seed's running mean and variance: every s', and a new
         episode's first state, that seed's only."""
-        td3 = self.config.td3
+        training = self.config.training
         transition, finished = self.environments.step(self._explore(), step=self.step + 1)
         self.replay.add(*transition)
         self.normalizer.update(transition.next_obs)
@@ -118,7 +118,7 @@ class Trainer:
             self.normalizer.update(self.environments.observations, mask=np.arange(len(self.environments)) == index)
         self.step += 1
         losses = None
-        if self.step >= td3.update_after and self.step % td3.update_every == 0:
+        if self.step >= training.update_after and self.step % training.update_every == 0:
             losses = self._learn()
         self.agent.after_step(self.step, self.replay, self.normalizer)  # the methods' work at intervals
         return losses
@@ -126,7 +126,7 @@ class Trainer:
     def _explore(self) -> np.ndarray:
         """Uniform random actions during the first start_steps, then the algorithm's (TD3's: π(s) + N(0, σ²) clipped
         to the bounds, or its exploration method's, :mod:`ilcsan.rl.methods`; SAC's: a sample of its policy)."""
-        if self.step < self.config.td3.start_steps:
+        if self.step < self.config.training.start_steps:
             scale, offset = self.environments.action_scale, self.environments.action_offset
             return np.stack([rng.uniform(offset - scale, offset + scale) for rng in self.rngs])
         return self.agent.explore(self.normalizer.normalize(self.environments.observations), self.rngs)
@@ -140,18 +140,18 @@ class Trainer:
 
     def _learn(self) -> dict[str, float]:
         """update_every updates, each on a fresh minibatch per seed; returns the mean losses per seed."""
-        td3 = self.config.td3
+        training = self.config.training
         critic_total, actor_total, actor_count = 0.0, 0.0, 0
         self.agent.before_updates(self.evaluations)
-        for _ in range(td3.update_every):
-            arrays = sample_minibatch(self.replay, self.normalizer, self.rngs, td3)
+        for _ in range(training.update_every):
+            arrays = sample_minibatch(self.replay, self.normalizer, self.rngs, training)
             arrays.update(self.agent.extra_samples(self.replay, self.normalizer, self.rngs))
             losses = self.agent.update(self.agent.to_batch(arrays))
             critic_total = critic_total + losses["critic_loss"]
             if losses["actor_loss"] is not None:
                 actor_total = actor_total + losses["actor_loss"]
                 actor_count += 1
-        critic_loss = float(critic_total) / td3.update_every
+        critic_loss = float(critic_total) / training.update_every
         actor_loss = float(actor_total) / max(actor_count, 1)
         check_losses(critic_loss, actor_loss, self.step)
         seeds = len(self.environments)
@@ -252,11 +252,11 @@ class TrainingClock:
 
 
 def sample_minibatch(replay: ReplayBuffer, normalizer: RunningNormalizer, rngs: list[np.random.Generator],
-                     td3) -> dict[str, np.ndarray]:
+                     training) -> dict[str, np.ndarray]:
     """``batch_size`` transitions per seed, (K, B, ·), drawn uniformly with replacement from that seed's replay rows
     with its own generator; s and s' normalised with the seeds' current statistics (z-scores clipped to ±3), as the
     actor sees states when it acts."""
-    arrays = replay.sample(rngs, td3.batch_size)
+    arrays = replay.sample(rngs, training.batch_size)
     arrays["obs"] = normalizer.normalize(arrays["obs"])
     arrays["next_obs"] = normalizer.normalize(arrays["next_obs"])
     return arrays

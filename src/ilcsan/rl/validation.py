@@ -15,7 +15,7 @@ def validate_run(config: RunConfig) -> None:
     """One clear sentence for every impossible run setting: the ranges and choices declared with the settings
     (:func:`~ilcsan.config.check_settings`), then what needs this process (seeds, threads, the device)."""
     check_settings(config)
-    check_settings(config.td3)
+    check_settings(config.training)
     algorithm_class(config.algorithm).check(config)
     if not config.seeds:
         raise UserError("give at least one seed")

@@ -32,7 +32,7 @@ from .directory import CHECKPOINT, PROVENANCE, RunDirectory, RunFileError
 CHECKPOINT_FORMAT = "ilcsan-checkpoint"
 POLICY_FORMAT = "ilcsan-policy"
 FORMAT_VERSION = 1
-RESUME_SETTINGS = ("task", "algorithm", "actor", "td3", "eval_every", "eval_episodes")
+RESUME_SETTINGS = ("task", "algorithm", "actor", "training", "eval_every", "eval_episodes")
 """The settings a resumed run must share with its checkpoint. The budget (``steps``) may change: a run resumed
 with a larger ``--steps`` continues to it exactly as a run started with that budget would have (nothing in
 training depends on the budget but where it stops), so a finished 200 000-step run extends to 1 000 000."""
@@ -196,8 +196,8 @@ def check_resumable(directory: RunDirectory, state: dict[str, Any], config: RunC
     if state.get("format") != CHECKPOINT_FORMAT or state.get("version") != FORMAT_VERSION:
         raise UserError(f"{directory.file(CHECKPOINT)} is not an ilcsan training checkpoint (format "
                         f"{state.get('format')!r} v{state.get('version')})")
-    saved = RunConfig.from_dict(state["config"])
-    mismatch = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(config, name)]
+    saved, recorded = RunConfig.from_dict(state["config"]), config.recorded()
+    mismatch = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(recorded, name)]
     if mismatch:
         raise UserError(f"{directory.path} was trained with different settings ({', '.join(mismatch)}); resume "
                         "with the same command, or choose another --out")

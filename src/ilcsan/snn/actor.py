@@ -79,13 +79,13 @@ class SpikingActor(_Actor):
 
     def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
                  action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast",
-                 matmul: MatmulPath = DEFAULT_MATMUL, normalization: type[nn.Module] | None = None):
+                 matmul_path: MatmulPath = DEFAULT_MATMUL, normalization: type[nn.Module] | None = None):
         super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
         ensemble = len(seeds)
         self.encoder = Encoder(config.encoder, ensemble, state_dim, config.population_in, config.timesteps,
                                threshold=config.enc_v_th)
         sizes = config.layer_sizes(state_dim, action_dim)
-        self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b, matmul=matmul)
+        self.layers = nn.ModuleList(EnsembleLinear(ensemble, a, b, matmul_path=matmul_path)
                                     for a, b in zip(sizes[:-1], sizes[1:], strict=True))
         mask = INTRA_MASKS[config.intra]
         self.intra = (IntraLayerConnections(ensemble, action_dim, config.population_out, mask,
@@ -214,9 +214,9 @@ class DeepActor(_Actor):
 
     def __init__(self, config: ActorConfig, state_dim: int, action_dim: int, action_scale: Sequence[float],
                  action_offset: Sequence[float], seeds: Sequence[int], engine: str = "fast",
-                 matmul: MatmulPath = DEFAULT_MATMUL):
+                 matmul_path: MatmulPath = DEFAULT_MATMUL):
         super().__init__(config, state_dim, action_dim, action_scale, action_offset, engine)
-        self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim), matmul)
+        self.mlp = EnsembleMLP(len(seeds), config.layer_sizes(state_dim, action_dim), matmul_path)
         self.mlp.reset_parameters(seed_generators(seeds, ACTOR_SALT))
 
     def run(self, state: torch.Tensor, engine: str | None = None, *, options: PassOptions = PLAIN_PASS,

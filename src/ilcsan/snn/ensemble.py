@@ -75,26 +75,28 @@ class _EnsembleAffine(torch.autograd.Function):
         return grad_input, grad_weight, grad_bias, None
 
 
-def affine_paths(matmul: MatmulPath, flat_shape: Sequence[int], weight_shape: Sequence[int]) -> tuple[str, str, str]:
+def affine_paths(matmul_path: MatmulPath, flat_shape: Sequence[int],
+                 weight_shape: Sequence[int]) -> tuple[str, str, str]:
     """The paths of a layer's three products for input (K, R, in) and weight (K, out, in): the forward product
     x Wᵀ, ∂L/∂x = g W (a (K, R, out) by (K, in, out) product) and ∂L/∂W = gᵀ x ((K, out, R) by (K, in, R))."""
     k, rows, d_in = flat_shape
     d_out = weight_shape[1]
-    return (matmul.product_path(flat_shape, weight_shape), matmul.product_path((k, rows, d_out), (k, d_in, d_out)),
-            matmul.product_path((k, d_out, rows), (k, d_in, rows)))
+    return (matmul_path.product_path(flat_shape, weight_shape),
+            matmul_path.product_path((k, rows, d_out), (k, d_in, d_out)),
+            matmul_path.product_path((k, d_out, rows), (k, d_in, rows)))
 
 
 class EnsembleLinear(nn.Module):
     """K fully-connected layers y = W_k x + b_k, weight (K, out, in), bias (K, out), whose products run on
-    ``matmul``.
+    ``matmul_path``.
 
     Initialised as ``torch.nn.Linear``: W, b ~ U(−1/√in, 1/√in).
     """
 
     def __init__(self, ensemble: int, in_features: int, out_features: int, bias: bool = True,
-                 matmul: MatmulPath = DEFAULT_MATMUL):
+                 matmul_path: MatmulPath = DEFAULT_MATMUL):
         super().__init__()
-        self.in_features, self.out_features, self.matmul = in_features, out_features, matmul
+        self.in_features, self.out_features, self.matmul_path = in_features, out_features, matmul_path
         self.weight = nn.Parameter(torch.empty(ensemble, out_features, in_features))
         self.bias = nn.Parameter(torch.empty(ensemble, out_features)) if bias else None
 
@@ -115,7 +117,7 @@ class EnsembleLinear(nn.Module):
         weight, bias = self.weight, self.bias
         if members is not None:
             weight, bias = weight[members], (bias[members] if bias is not None else None)
-        out = _EnsembleAffine.apply(flat, weight, bias, affine_paths(self.matmul, flat.shape, weight.shape))
+        out = _EnsembleAffine.apply(flat, weight, bias, affine_paths(self.matmul_path, flat.shape, weight.shape))
         return out.reshape(*shape[:-1], self.out_features)
 
     def extra_repr(self) -> str:
@@ -125,10 +127,10 @@ class EnsembleLinear(nn.Module):
 class EnsembleMLP(nn.Module):
     """K multilayer perceptrons with ReLU between layers (TD3's critic and deep actor)."""
 
-    def __init__(self, ensemble: int, sizes: Sequence[int], matmul: MatmulPath = DEFAULT_MATMUL):
+    def __init__(self, ensemble: int, sizes: Sequence[int], matmul_path: MatmulPath = DEFAULT_MATMUL):
         super().__init__()
         self.layers = nn.ModuleList(
-            EnsembleLinear(ensemble, d_in, d_out, matmul=matmul) for d_in, d_out in zip(sizes[:-1], sizes[1:],
+            EnsembleLinear(ensemble, d_in, d_out, matmul_path=matmul_path) for d_in, d_out in zip(sizes[:-1], sizes[1:],
                                                                                        strict=True)
         )
 

@@ -22,8 +22,8 @@ def algorithm_class(name: str) -> type[OffPolicyAlgorithm]:
 
 
 def build_algorithm(config: RunConfig, state_dim: int, action_dim: int, action_scale, action_offset,
-                    episode_steps: int | None, matmul) -> OffPolicyAlgorithm:
+                    episode_steps: int | None, matmul_path) -> OffPolicyAlgorithm:
     """The run's algorithm for its seeds, on its device, compiled or not as the run says."""
     task = TaskSpace(state_dim, action_dim, action_scale, action_offset, config.task, episode_steps)
-    compute = ComputeSettings(config.device, config.compiles(), config.engine, matmul)
-    return algorithm_class(config.algorithm)(config.actor, config.td3, task, config.seeds, compute)
+    compute = ComputeSettings(config.device, config.compiles(), config.engine, matmul_path)
+    return algorithm_class(config.algorithm)(config.actor, config.training, task, config.seeds, compute)

@@ -52,7 +52,7 @@ NOISE_SALT = 3
 
 class OffPolicyAlgorithm:
     """K agents of one off-policy algorithm (one per seed) for the actor ``actor_config`` describes, trained with the
-    settings ``td3``, on ``task`` (:class:`~ilcsan.rl.agent_settings.TaskSpace`), computing as ``compute`` says
+    settings ``training``, on ``task`` (:class:`~ilcsan.rl.agent_settings.TaskSpace`), computing as ``compute`` says
     (:class:`~ilcsan.rl.agent_settings.ComputeSettings`). Subclasses define :meth:`explore` and :meth:`update`."""
 
     critics = 2
@@ -66,29 +66,30 @@ class OffPolicyAlgorithm:
     def check(cls, config: RunConfig) -> None:
         """Raise :class:`~ilcsan.errors.UserError` for a setting this algorithm cannot train with: the refusals its
         declaration and the run's methods declare (:func:`ilcsan.methods.check_run`)."""
-        methods.check_run(config.task, config.algorithm, config.actor, config.td3)
+        methods.check_run(config.task, config.algorithm, config.actor, config.training)
 
     @classmethod
-    def policy_delay(cls, td3: TrainingProtocol) -> int:
+    def policy_delay(cls, training: TrainingProtocol) -> int:
         """Critic updates per actor update."""
         return 1
 
-    def __init__(self, actor_config: ActorConfig, td3: TrainingProtocol, task: TaskSpace, seeds: Sequence[int],
+    def __init__(self, actor_config: ActorConfig, training: TrainingProtocol, task: TaskSpace, seeds: Sequence[int],
                  compute: ComputeSettings = EAGER_ON_CPU):
-        self.config, self.td3, self.task, self.compute, self.seeds = actor_config, td3, task, compute, list(seeds)
+        self.actor_config, self.training, self.task = actor_config, training, task
+        self.compute, self.seeds = compute, list(seeds)
         self.device, self.compiled = compute.device, compute.compile
         self.state_dim, self.action_dim = task.state_dim, task.action_dim
         self.action_scale, self.action_offset = task.action_scale, task.action_offset
         self.actor = self._build_actor(self.readouts)
-        self.critic = Critics(task.state_dim, task.action_dim, td3.critic_hidden, self.seeds, self.critics,
-                              compute.matmul).to(self.device)
+        self.critic = Critics(task.state_dim, task.action_dim, training.critic_hidden, self.seeds, self.critics,
+                              compute.matmul_path).to(self.device)
         self.critic_target = copy.deepcopy(self.critic)
         self.critic_target.requires_grad_(False)
         self.critic_names = [name for name, _ in self.critic.named_parameters()]
         if compute.compile:
             prepare_compilation()
         self.actor_adam = Adam(self.actor, actor_config.learning_rate)
-        self.critic_adam = Adam(self.critic, td3.critic_lr)
+        self.critic_adam = Adam(self.critic, training.critic_lr)
         # compile: the acting forward pass too (a spiking actor's many small neuron-update ops fuse into a few loops;
         # for DAN the program saves the eager per-op dispatch of a batch-1 action)
         self.actor_fn = CompiledPerShape(self.actor) if compute.compile else self.actor
@@ -107,12 +108,12 @@ class OffPolicyAlgorithm:
         padding = readouts - 1
         scale = np.concatenate([self.action_scale, np.ones(padding * self.action_dim)])
         offset = np.concatenate([self.action_offset, np.zeros(padding * self.action_dim)])
-        return build_actor(self.config, self.state_dim, readouts * self.action_dim, scale, offset, self.seeds,
-                           engine=self.compute.engine, matmul=self.compute.matmul).to(self.device)
+        return build_actor(self.actor_config, self.state_dim, readouts * self.action_dim, scale, offset, self.seeds,
+                           engine=self.compute.engine, matmul_path=self.compute.matmul_path).to(self.device)
 
     def method_context(self) -> MethodContext:
         """What a training method is built from: this agent's actor, settings, task and seeds."""
-        return MethodContext(self.actor, self.config, self.td3, self.task, tuple(self.seeds), self.compute)
+        return MethodContext(self.actor, self.actor_config, self.training, self.task, tuple(self.seeds), self.compute)
 
     def methods(self) -> list[Method]:
         """The training methods this agent runs (every algorithm: the actor's normalisation and the loss terms)."""
@@ -202,7 +203,7 @@ class OffPolicyAlgorithm:
         """One Adam step of the critics' tensors (at ``critic_lr``) on :meth:`critic_loss` toward the targets y, in
         place; returns the loss."""
         grads, loss = value_and_grads(self._critic_loss, tensors["critic"], batch, target)
-        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.td3.critic_lr)
+        adam_(tensors["critic"], grads, *tensors["critic_adam"], lr=self.training.critic_lr)
         return loss
 
     def _critic_loss(self, critic: list, batch: dict, target: torch.Tensor) -> torch.Tensor:
@@ -210,7 +211,7 @@ class OffPolicyAlgorithm:
 
     def follow_critics(self, tensors: dict) -> None:
         """θ' ← τθ + (1 − τ)θ' for the target critics, in place."""
-        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], self.td3.tau)
+        torch._foreach_lerp_(tensors["critic_target"], tensors["critic"], self.training.tau)
 
     def run(self, program, batch: dict[str, torch.Tensor]):
         """``program(tensors, batch)`` in place, outside autograd (the update makes its own gradients)."""

@@ -19,10 +19,10 @@ class Critics(nn.Module):
     the other from the seed's own generator."""
 
     def __init__(self, state_dim: int, action_dim: int, hidden: Sequence[int], seeds: Sequence[int], count: int = 2,
-                 matmul: MatmulPath = DEFAULT_MATMUL):
+                 matmul_path: MatmulPath = DEFAULT_MATMUL):
         super().__init__()
         self.ensemble, self.count = len(seeds), count
-        self.mlp = EnsembleMLP(count * self.ensemble, [state_dim + action_dim, *hidden, 1], matmul)
+        self.mlp = EnsembleMLP(count * self.ensemble, [state_dim + action_dim, *hidden, 1], matmul_path)
         generators = seed_generators(seeds, CRITIC_SALT)
         self.mlp.reset_parameters([g for g in generators for _ in range(count)])
 

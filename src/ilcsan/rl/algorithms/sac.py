@@ -68,8 +68,8 @@ class SAC(OffPolicyAlgorithm):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self.entropy = EntropyCoefficient(len(self.seeds), self.td3.initial_entropy_coefficient, self.device)
-        self.entropy_adam = Adam(self.entropy, self.td3.entropy_lr)
+        self.entropy = EntropyCoefficient(len(self.seeds), self.training.initial_entropy_coefficient, self.device)
+        self.entropy_adam = Adam(self.entropy, self.training.entropy_lr)
         self.target_entropy = -float(self.action_dim)
         self.readout_fn = CompiledPerShape(self.actor, self._readout) if self.compiled else self._readout
         constants = [self.scale, self.offset]
@@ -118,7 +118,7 @@ class SAC(OffPolicyAlgorithm):
         """y = r + γ(1 − d)(min_j Q'_j(s', a') − α log π(a' | s')), shape (K, B)."""
         next_action, next_log_prob, _ = self.sample(actor, batch["next_obs"], batch["next_noise"])
         soft_q = target_critic(batch["next_obs"], next_action).min(dim=1).values - alpha[:, None] * next_log_prob
-        return batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * soft_q
+        return batch["reward"] + self.training.gamma * (1.0 - batch["terminal"]) * soft_q
 
     def actor_loss(self, actor: list, buffers: list, critic: list, alpha: torch.Tensor,
                    batch: dict) -> tuple[torch.Tensor, tuple[torch.Tensor, tuple]]:
@@ -144,11 +144,11 @@ class SAC(OffPolicyAlgorithm):
         grads, (actor_loss, (log_prob, record)) = value_and_grads(
             self.actor_loss, tensors["actor"], tensors["actor_buffers"], tensors["critic"], alpha, batch, has_aux=True)
         adam_(tensors["actor"], self.actor_methods.gradients(grads), *tensors["actor_adam"],
-              lr=self.config.learning_rate)
+              lr=self.actor_config.learning_rate)
         self.actor_methods.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
         # ∂/∂log α of −mean_b log α (log π + H̄), per seed
         entropy_grads = [-(log_prob + self.target_entropy).mean(dim=-1)]
-        adam_(tensors["entropy"], entropy_grads, *tensors["entropy_adam"], lr=self.td3.entropy_lr)
+        adam_(tensors["entropy"], entropy_grads, *tensors["entropy_adam"], lr=self.training.entropy_lr)
         self.follow_critics(tensors)
         return critic_loss, actor_loss
 

@@ -46,21 +46,21 @@ from .base import OffPolicyAlgorithm
 
 
 class TD3(OffPolicyAlgorithm):
-    """K TD3 agents; the exploration and target-actor methods are the run's (``td3.exploration``,
-    ``td3.target_actor``)."""
+    """K TD3 agents; the exploration and target-actor methods are the run's (``training.exploration``,
+    ``training.target_actor``)."""
 
     smoothing = True
     """Target policy smoothing: noise on the target action."""
 
     @classmethod
-    def policy_delay(cls, td3: TrainingProtocol) -> int:
-        return td3.policy_delay
+    def policy_delay(cls, training: TrainingProtocol) -> int:
+        return training.policy_delay
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         context = self.method_context()
-        self.target_method = target_actor_method(self.td3.target_actor)(context)
-        self.exploration = exploration_method(self.td3.exploration)(context)
+        self.target_method = target_actor_method(self.training.target_actor)(context)
+        self.exploration = exploration_method(self.training.exploration)(context)
         constants = [self.scale, self.offset]
         for module in (self.actor, self.critic, self.actor_target, self.critic_target, self.exploration.module):
             constants += module_tensors(module) if module is not None else []
@@ -87,7 +87,7 @@ class TD3(OffPolicyAlgorithm):
         self.exploration.before_updates(evaluations)
 
     def extra_samples(self, replay, normalizer, rngs) -> dict[str, np.ndarray]:
-        return self.target_method.extra_samples(replay, normalizer, rngs, self.td3)
+        return self.target_method.extra_samples(replay, normalizer, rngs, self.training)
 
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor | None]:
         """One update (the module docstring). The target actor method runs first (e.g. fitting a network of its own on
@@ -95,7 +95,7 @@ class TD3(OffPolicyAlgorithm):
         drawn outside the update program)."""
         self.target_method.before_update(self, batch)
         self.updates += 1
-        delayed = self.updates % self.policy_delay(self.td3) == 0
+        delayed = self.updates % self.policy_delay(self.training) == 0
         if delayed:
             batch = {**batch, **self.exploration.update_inputs(batch["obs"].shape[1])}
         if self.smoothing:
@@ -110,15 +110,16 @@ class TD3(OffPolicyAlgorithm):
                       target_critic: Callable | None = None) -> torch.Tensor:
         """y = r + γ (1 − terminal) min_j Q'_j(s', ã), shape (K, B); ã = clip(π'(s') + clip(σ̃ε, −c, c), low, high)
         with smoothing (ε ~ N(0, 1) is ``batch["smoothing_noise"]``), else π'(s')."""
-        td3 = self.td3
+        training = self.training
         next_obs = batch["next_obs"]
         next_action = (target_actor or self.actor_target)(next_obs)
         if self.smoothing:
-            noise = (batch["smoothing_noise"] * td3.target_noise).clamp(-td3.noise_clip, td3.noise_clip) * self.scale
+            clip = training.noise_clip
+            noise = (batch["smoothing_noise"] * training.target_noise).clamp(-clip, clip) * self.scale
             next_action = torch.maximum(torch.minimum(next_action + noise, self.offset + self.scale),
                                         self.offset - self.scale)
         target_q = (target_critic or self.critic_target)(next_obs, next_action).min(dim=1).values
-        return batch["reward"] + td3.gamma * (1.0 - batch["terminal"]) * target_q
+        return batch["reward"] + training.gamma * (1.0 - batch["terminal"]) * target_q
 
     def actor_loss(self, batch: dict[str, torch.Tensor], actor: Callable | None = None,
                    critic: Callable | None = None, method_parameters: list | None = None,
@@ -158,7 +159,7 @@ class TD3(OffPolicyAlgorithm):
 
     def _delayed_step(self, tensors: dict, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
         critic_loss = self._critic_step(tensors, batch)
-        lr = self.config.learning_rate
+        lr = self.actor_config.learning_rate
         (grads, method_grads), (actor_loss, record) = value_and_grads(
             self._actor_loss, tensors["actor"], tensors["exploration"], tensors["critic"], tensors["actor_buffers"],
             batch, wrt=(0, 1), has_aux=True)
@@ -166,7 +167,7 @@ class TD3(OffPolicyAlgorithm):
         if tensors["exploration"]:  # the exploration method's own parameters, at the actor's rate
             adam_(tensors["exploration"], method_grads, *tensors["exploration_adam"], lr=lr)
         self.actor_methods.after_actor_step(tensors["actor_buffers"], record, batch["obs"].shape[1])
-        tau = self.td3.tau
+        tau = self.training.tau
         if self.target_method.soft_update:
             torch._foreach_lerp_(tensors["actor_target"], tensors["actor"], tau)
             self.actor_methods.follow_buffers(tensors["actor_target_buffers"], tensors["actor_buffers"], tau)
@@ -213,17 +214,17 @@ class DDPG(TD3):
     smoothing = False
 
     @classmethod
-    def policy_delay(cls, td3: TrainingProtocol) -> int:
+    def policy_delay(cls, training: TrainingProtocol) -> int:
         return 1
 
 
 class GaussianActionNoise(Exploration):
     """TD3's exploration (the paper's): a = clip(π(s) + σ·scale·ε, low, high), ε ~ N(0, I) per seed from the seed's own
-    generator, σ = ``td3.exploration_noise`` relative to the action half-range ``scale``."""
+    generator, σ = ``training.exploration_noise`` relative to the action half-range ``scale``."""
 
     def __init__(self, context: MethodContext):
         self.scale, self.offset = context.task.action_scale, context.task.action_offset
-        self.sigma, self.action_dim = context.td3.exploration_noise, context.task.action_dim
+        self.sigma, self.action_dim = context.training.exploration_noise, context.task.action_dim
 
     def explore(self, agent, states: np.ndarray, rngs: Sequence[np.random.Generator]) -> np.ndarray:
         low, high = self.offset - self.scale, self.offset + self.scale

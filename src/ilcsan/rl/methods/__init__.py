@@ -4,9 +4,9 @@ for the actor's normalisation, and what the actor's loss adds.
 TD3 and DDPG (:mod:`ilcsan.rl.algorithms.td3`) have two places where the methods that followed ILC-SAN change them,
 and each is a strategy object with a small set of hooks, chosen by name in the run's training settings:
 
-- **exploration** (``td3.exploration``, :class:`Exploration`): how the actor acts while training, what the actor's
+- **exploration** (``training.exploration``, :class:`Exploration`): how the actor acts while training, what the actor's
   loss adds, and any parameters of its own;
-- **target actor** (``td3.target_actor``, :class:`TargetActor`): the actor π' in TD3's target values, and what it
+- **target actor** (``training.target_actor``, :class:`TargetActor`): the actor π' in TD3's target values, and what it
   does before each update.
 
 Two more run under every algorithm (SAC too):
@@ -36,12 +36,12 @@ __all__ = ["Exploration", "LossTerm", "Method", "MethodContext", "Normalization"
 
 
 def exploration_method(name: str) -> type[Exploration]:
-    """The hooks of ``td3.exploration`` ``name``."""
+    """The hooks of ``training.exploration`` ``name``."""
     return methods.declared("exploration", name).training_class()
 
 
 def target_actor_method(name: str) -> type[TargetActor]:
-    """The hooks of ``td3.target_actor`` ``name``."""
+    """The hooks of ``training.target_actor`` ``name``."""
     return methods.declared("target_actor", name).training_class()
 
 
@@ -50,6 +50,6 @@ def normalization_method(name: str) -> type[Normalization]:
     return methods.declared("normalization", name).training_class()
 
 
-def loss_term_methods(td3: Any) -> list[type[LossTerm]]:
-    """The hooks of every loss term training settings ``td3`` weigh above 0."""
-    return [method.training_class() for method in methods.registered("loss_term").values() if method.active(td3)]
+def loss_term_methods(training: Any) -> list[type[LossTerm]]:
+    """The hooks of every loss term training settings ``training`` weigh above 0."""
+    return [method.training_class() for method in methods.registered("loss_term").values() if method.active(training)]

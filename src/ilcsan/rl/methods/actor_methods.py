@@ -25,7 +25,7 @@ class ActorMethods:
 
     def __init__(self, context: MethodContext, parameter_names: Sequence[str]):
         self.normalization = normalization_method(context.actor_config.normalization)(context)
-        self.loss_terms = [method(context) for method in loss_term_methods(context.td3)]
+        self.loss_terms = [method(context) for method in loss_term_methods(context.training)]
         self.buffer_names = list(persistent_buffers(context.actor))
         self.followed_buffers = self.normalization.followed_buffers(self.buffer_names)
         """The actor's buffers a Polyak-averaged target actor follows (by name; the target's are named alike)."""

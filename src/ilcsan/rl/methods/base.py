@@ -23,7 +23,7 @@ class MethodContext:
 
     actor: nn.Module
     actor_config: ActorConfig
-    td3: TrainingProtocol
+    training: TrainingProtocol
     task: TaskSpace
     seeds: tuple[int, ...]
     compute: ComputeSettings
@@ -94,14 +94,14 @@ class TargetActor(Method):
 
     :attr:`module` is π' itself, whose parameters the update reads (and, with ``soft_update``, moves toward the
     actor's, θ' ← τθ + (1 − τ)θ', at each delayed step); :attr:`called` is what errors about its checkpoint call it.
-    ``extra_samples(replay, normalizer, rngs, td3)``: arrays added to each minibatch, drawn after its transitions from
-    the same generators. ``before_update(agent, batch)``: runs before each update, outside the update program.
+    ``extra_samples(replay, normalizer, rngs, training)``: arrays added to each minibatch, drawn after its transitions
+    from the same generators. ``before_update(agent, batch)``: runs before each update, outside the update program.
     """
 
     soft_update = False
     called = "target actor"
 
-    def extra_samples(self, replay, normalizer, rngs, td3: TrainingProtocol) -> dict[str, np.ndarray]:
+    def extra_samples(self, replay, normalizer, rngs, training: TrainingProtocol) -> dict[str, np.ndarray]:
         return {}
 
     def before_update(self, agent, batch: dict[str, torch.Tensor]) -> None:

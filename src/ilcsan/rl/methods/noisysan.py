@@ -56,14 +56,14 @@ class NoisyExploration(nn.Module):
     """The noise of K seeds: the learned decoder scales σ_d (K, M), each seed's exploration series, and the draws of
     the update's noise windows."""
 
-    def __init__(self, widths: Sequence[int], action_dim: int, timesteps: int, td3: TrainingProtocol,
+    def __init__(self, widths: Sequence[int], action_dim: int, timesteps: int, training: TrainingProtocol,
                  reference_return: float, episode_steps: int | None, seeds: Sequence[int], device: torch.device):
         super().__init__()
         self.widths, self.timesteps = tuple(widths), timesteps
-        self.layer_sigmas = tuple(td3.noisy_sigma / math.sqrt(width) for width in self.widths)
-        self.decoder_sigma = nn.Parameter(torch.full((len(seeds), action_dim), td3.noisy_sigma / math.sqrt(action_dim),
-                                                     device=device))
-        self.beta, self.reference_return = td3.noisy_beta, reference_return
+        self.layer_sigmas = tuple(training.noisy_sigma / math.sqrt(width) for width in self.widths)
+        self.decoder_sigma = nn.Parameter(torch.full((len(seeds), action_dim),
+                                                     training.noisy_sigma / math.sqrt(action_dim), device=device))
+        self.beta, self.reference_return = training.noisy_beta, reference_return
         self.channels = 2 * sum(self.widths) + action_dim
         self.series_samples = fft_length(((episode_steps or DEFAULT_EPISODE_STEPS) + 1) * timesteps)
         covariance = window_covariance(self.beta, self.series_samples, timesteps)
@@ -169,8 +169,8 @@ class NoisySAN(Exploration):
 
     def __init__(self, context: MethodContext):
         actor = context.actor
-        self.module = NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, context.td3,
-                                       return_reference(context.task.name, context.td3),
+        self.module = NoisyExploration(actor.noise_widths(), actor.action_dim, actor.config.timesteps, context.training,
+                                       return_reference(context.task.name, context.training),
                                        context.task.episode_steps, context.seeds, context.compute.device)
         self.adam = Adam(self.module, context.actor_config.learning_rate)
         exploring = ExploringActor(actor, self.module)

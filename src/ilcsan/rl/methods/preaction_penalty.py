@@ -9,10 +9,10 @@ from .base import LossTerm, MethodContext
 
 
 class PreactionPenalty(LossTerm):
-    """Σ_k λ mean_{b,m} O_{k,b,m}², λ = ``td3.preaction_penalty``."""
+    """Σ_k λ mean_{b,m} O_{k,b,m}², λ = ``training.preaction_penalty``."""
 
     def __init__(self, context: MethodContext):
-        self.weight = context.td3.preaction_penalty
+        self.weight = context.training.preaction_penalty
 
     def loss(self, preaction: torch.Tensor) -> torch.Tensor:
         return self.weight * (preaction ** 2).mean(dim=(-2, -1)).sum()

@@ -39,11 +39,11 @@ PROXY_SALT = 4
 
 
 def build_proxy(state_dim: int, action_dim: int, action_scale: Sequence[float], action_offset: Sequence[float],
-                seeds: Sequence[int], matmul: MatmulPath = DEFAULT_MATMUL) -> DeepActor:
+                seeds: Sequence[int], matmul_path: MatmulPath = DEFAULT_MATMUL) -> DeepActor:
     """K proxy actors (N, 512, ReLU, 512, ReLU, M, tanh·scale + offset), seed k's from its own generator."""
     config = actor_config("dan", hidden=PROXY_HIDDEN)
     return DeepActor(config, state_dim, action_dim, action_scale, action_offset,
-                     [seed * 7919 + PROXY_SALT for seed in seeds], matmul=matmul)
+                     [seed * 7919 + PROXY_SALT for seed in seeds], matmul_path=matmul_path)
 
 
 class ProxyTarget(TargetActor):
@@ -52,12 +52,12 @@ class ProxyTarget(TargetActor):
     called = "target actor (Proxy Target: the proxy)"
 
     def __init__(self, context: MethodContext):
-        td3 = context.td3
+        training = context.training
         task, compute = context.task, context.compute
         proxy = build_proxy(task.state_dim, task.action_dim, task.action_scale, task.action_offset, context.seeds,
-                            compute.matmul).to(compute.device)
-        self.module, self.iterations, self.lr = proxy, td3.proxy_iterations, td3.proxy_lr
-        self.adam = Adam(proxy, td3.proxy_lr)
+                            compute.matmul_path).to(compute.device)
+        self.module, self.iterations, self.lr = proxy, training.proxy_iterations, training.proxy_lr
+        self.adam = Adam(proxy, training.proxy_lr)
         self.names = self.adam.names
         self.program = as_program(self._regression_steps, module_tensors(proxy), compute.compile)
 
@@ -90,10 +90,10 @@ class ProxyTarget(TargetActor):
             return self.program(tensors, states.contiguous(), goals.contiguous())
 
     # ------------------------------------------------------------------------------------ hooks
-    def extra_samples(self, replay, normalizer, rngs, td3: TrainingProtocol) -> dict[str, np.ndarray]:
+    def extra_samples(self, replay, normalizer, rngs, training: TrainingProtocol) -> dict[str, np.ndarray]:
         """A fresh minibatch of replayed states per regression step: ``proxy_obs`` (iterations, K, B, N)."""
-        return {"proxy_obs": np.stack([normalizer.normalize(replay.sample_states(rngs, td3.batch_size))
-                                       for _ in range(td3.proxy_iterations)])}
+        return {"proxy_obs": np.stack([normalizer.normalize(replay.sample_states(rngs, training.batch_size))
+                                       for _ in range(training.proxy_iterations)])}
 
     def before_update(self, agent, batch: dict[str, torch.Tensor]) -> None:
         self.fit(agent.actor_fn, batch["proxy_obs"])
