@@ -43,7 +43,7 @@ class PolicyEvaluation(OffPolicyAlgorithm):
             actor = self.update_tensors.stateful(self.actor, tensors["actor"], tensors["actor_buffers"])
             critic = as_function(self.critic_target, tensors["critic_target"], self.critic_names)
             next_q = critic(batch["next_obs"], actor(batch["next_obs"])).min(dim=1).values
-            target = batch["reward"] + self.td3.gamma * (1.0 - batch["terminal"]) * next_q
+            target = batch["reward"] + self.training.gamma * (1.0 - batch["terminal"]) * next_q
         loss = self.step_critics(tensors, batch, target)
         self.follow_critics(tensors)
         return loss
