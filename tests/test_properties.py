@@ -219,9 +219,10 @@ def stubbed(monkeypatch, workspace):
     import ilcsan.analysis.report
     import ilcsan.experiments.coordinator
     import ilcsan.rl.evaluation
+    import ilcsan.rl.run_setup
     import ilcsan.rl.training
 
-    monkeypatch.setattr(ilcsan.rl.training, "build_algorithm", _StubAgent)
+    monkeypatch.setattr(ilcsan.rl.run_setup, "build_algorithm", _StubAgent)
     monkeypatch.setattr(ilcsan.rl.training, "train", _stub_train)
     monkeypatch.setattr(ilcsan.rl.evaluation, "run_episodes", _one_action_episodes)
     monkeypatch.setattr(ilcsan.rl.evaluation, "random_policy_return", lambda *_a, **_k: 0.0)

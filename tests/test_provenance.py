@@ -188,13 +188,13 @@ def test_a_run_records_a_segment_when_it_starts_and_another_when_it_resumes(tmp_
     from test_training import interrupt_after_first_checkpoint, tiny_run
 
     from ilcsan.compute.matmul import MatmulPath
-    from ilcsan.rl import training
+    from ilcsan.rl import run_setup, training
 
     def choose(config, state_dim, action_dim, episode_steps=None):
         path = "bf16" if config.matmul == "bf16" else "aten"
         return MatmulPath(path, set() if path == "bf16" else None), {"path": path, "compiled": False, "gflops": {}}
 
-    monkeypatch.setattr(training, "choose_matmul_path", choose)
+    monkeypatch.setattr(run_setup, "choose_matmul_path", choose)
     config = tiny_run(seeds=(0, 1), steps=20, eval_every=10, actor=ilcsan.actor_config("ilc-san", hidden=(8,)))
     out = tmp_path / "run"
     interrupt_after_first_checkpoint(config, out, monkeypatch)

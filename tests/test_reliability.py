@@ -354,7 +354,7 @@ def no_training(monkeypatch):
     def refuse(*_args, **_kwargs):
         raise AssertionError("an agent was built before the output folder was checked")
 
-    monkeypatch.setattr("ilcsan.rl.training.build_algorithm", refuse)
+    monkeypatch.setattr("ilcsan.rl.run_setup.build_algorithm", refuse)
 
 
 def test_output_below_a_file_is_reported_before_training(tmp_path, capsys, no_training):

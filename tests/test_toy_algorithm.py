@@ -7,6 +7,8 @@ learn y = r + γ(1 − d) min_j Q'_j(s', π(s')) with the actor as it is, explor
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -15,6 +17,7 @@ from ilcsan import methods
 from ilcsan.cli import build_parser
 from ilcsan.cli.train import build_run_config
 from ilcsan.compute.programs import as_function, as_program, module_tensors
+from ilcsan.config import training_config_class
 from ilcsan.methods import Declared
 from ilcsan.rl.algorithms import OffPolicyAlgorithm
 from ilcsan.rl.training import train
@@ -74,15 +77,18 @@ def test_a_registered_algorithm_is_a_choice_of_the_command_line(evaluation, monk
 
 
 def test_a_registered_algorithm_trains_checkpoints_and_resumes_exactly(evaluation, tmp_path, monkeypatch):
-    from test_training import assert_resumes_to_the_same_curve, tiny_run
+    from test_training import TINY_TRAINING, assert_resumes_to_the_same_curve, tiny_run
 
-    config = tiny_run(seeds=(0, 1), steps=450, algorithm=evaluation)
+    # the training settings as made now that the toy is registered (a configuration made before lacks it)
+    training = training_config_class()(**dataclasses.asdict(TINY_TRAINING))
+    config = tiny_run(seeds=(0, 1), steps=450, algorithm=evaluation, training=training)
     checkpoints = assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch)
     for straight, resumed in checkpoints:
         assert straight["updates"] > 0 and straight["updates"] == resumed["updates"]
         for name, tensor in straight["critic"].items():
             assert torch.equal(tensor, resumed["critic"][name]), name
-    untrained = train(tiny_run(steps=100, eval_every=100, algorithm=evaluation), tmp_path / "untrained",
+    untrained = train(tiny_run(steps=100, eval_every=100, algorithm=evaluation, training=training),
+                      tmp_path / "untrained",
                       progress=False, log=lambda *_: None)
     trained_actor = torch.load(tmp_path / "straight" / "seed0" / "policy.pt", weights_only=True)["actor"]
     fresh_actor = torch.load(untrained[0]["directory"] + "/policy.pt", weights_only=True)["actor"]

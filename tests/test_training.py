@@ -126,7 +126,7 @@ def test_compiled_update_program_equals_the_eager_update(preset, path):
 def layer_paths(agent) -> set[str]:
     """The matmul kinds of every synaptic layer of an agent's networks."""
     return {module.matmul_path.kind for network in (agent.actor, agent.critic, agent.actor_target, agent.critic_target)
-            for module in network.modules() if hasattr(module, "matmul")}
+            for module in network.modules() if hasattr(module, "matmul_path")}
 
 
 def test_matmul_option_gives_the_run_its_path_and_close_gives_the_process_its_settings_back(
