@@ -79,8 +79,7 @@ def test_the_actor_normalises_with_the_declared_layer(toy_shift):
     assert torch.equal(actor(state), plain(state)), "a zero shift is no shift; the other weights are the same"
     shifted(actor)
     assert not torch.equal(actor(state), plain(state))
-    for engine in ("fast", "reference"):
-        torch.testing.assert_close(actor.run(state, engine).action, actor.run(state, "fast").action)
+    torch.testing.assert_close(actor.run(state, "reference").action, actor.run(state, "fast").action)
 
 
 def test_the_update_trains_it_and_keeps_its_buffer_in_checkpoints(toy_shift):
