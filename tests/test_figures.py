@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,19 @@ def test_fig5_and_fig6_are_written_only_when_both_of_their_rows_ran_on_one_task(
     # a table other than perf (here intra, whose rows are other) never draws them
     intra_run(tmp_path / "intra", "Hopper", "intra", 0, [0, 100])
     assert "fig5" not in write_report(tmp_path / "intra")
+
+
+def test_a_figure_an_earlier_report_drew_is_removed_when_the_runs_no_longer_show_it(tmp_path: Path) -> None:
+    """Re-reporting into the same folder: fig5.png of runs that are gone does not stay beside the new report."""
+    runs, out = tmp_path / "runs", tmp_path / "out"
+    perf_run(runs, "Hopper", "ilc-san-pop-det", 0, [0, 100])
+    popsan = perf_run(runs, "Hopper", "popsan", 0, [0, 100])
+    assert (out / "fig5.png") in write_report(runs, out, table="perf").values()
+    (out / "notes.png").write_bytes(b"mine")  # not a report's figure: kept
+    shutil.rmtree(popsan)
+    paths = write_report(runs, out, table="perf")
+    assert "fig5" not in paths and not (out / "fig5.png").exists()
+    assert (out / "notes.png").read_bytes() == b"mine" and paths["curves"].exists()
 
 
 def test_curves_panels_draw_the_papers_value_of_each_row_in_its_colour(tmp_path: Path) -> None:

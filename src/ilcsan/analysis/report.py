@@ -27,7 +27,7 @@ from .collapse import COLLAPSE_RETURN, collapse_markdown, collapse_rows, plot_di
 from .collect import RunFolders, RunRecord, RunScan, SkippedRun, collect_runs, folders_of, read_run, scan_runs
 from .comparison import DEFAULT_BOOTSTRAP, Bootstrap, TableComparison, compare_table
 from .curves import curve, draw_curves, plot_curves, smooth, smoothing_window
-from .figures import write_interval_figure, write_paper_figures
+from .figures import INTERVALS_FIGURE, PAPER_FIGURES, write_interval_figure, write_paper_figures
 from .render import (
     REPORT_TITLE,
     comparison_lines,
@@ -50,6 +50,10 @@ REPORT_FILES: dict[str, str] = {
     "curves": "curves.png",
 }
 """The files of a report by kind, as :func:`write_report` returns them."""
+OPTIONAL_FIGURES: tuple[str, ...] = (DIAGNOSTICS_FIGURE, INTERVALS_FIGURE,
+                                     *(f"{figure.name}.png" for figure in PAPER_FIGURES))
+"""The figures a report draws only when it has what they show; one left by an earlier report of the folder is
+removed when this one does not draw it, so that every file of a report folder describes the same runs."""
 
 
 def write_report(directories: RunFolders, out_dir: str | Path | None = None,
@@ -110,7 +114,17 @@ def write_scanned_report(scan: RunScan, out: Path, table: str | TableSpec | None
     draw_curves(results, paths["curves"])
     paths.update(write_paper_figures(results, out))
     paths.update(write_interval_figure(comparisons, out))
+    remove_stale_figures(out, paths.values())
     return WrittenReport(paths, results, comparisons)
+
+
+def remove_stale_figures(out: Path, written: Collection[Path]) -> list[Path]:
+    """Remove from ``out`` each of :data:`OPTIONAL_FIGURES` that this report did not write (``written``); returns
+    the removed paths."""
+    stale = [out / name for name in OPTIONAL_FIGURES if out / name not in set(written) and (out / name).exists()]
+    for path in stale:
+        path.unlink()
+    return stale
 
 
 def runs_of_seeds(runs: Sequence[RunRecord], seeds: Collection[int] | None) -> list[RunRecord]:
