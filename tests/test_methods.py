@@ -196,3 +196,24 @@ def test_td3s_own_methods_live_beside_td3():
 
     assert methods.declared("exploration", "gaussian").training_class() is td3.GaussianActionNoise
     assert methods.declared("target_actor", "polyak").training_class() is td3.PolyakTarget
+
+
+def test_settings_made_before_a_method_was_registered_still_resume_the_run():
+    """Registering a method makes a new training settings class (its fields join); a configuration made before it
+    has the old class. The resume check compares values, so the same settings still match, and a changed one
+    does not."""
+    from ilcsan.config import RunConfig
+    from ilcsan.runs.checkpoint import differing_settings
+
+    before = RunConfig(task="Pendulum-v1", training=training_config_class()(start_steps=500))
+    methods.register(ToyNoise)
+    try:
+        saved = RunConfig.from_dict(before.for_seed(0))  # its config.json, read now that the toy is registered
+        assert type(saved.training) is not type(before.training) and saved.training.start_steps == 500
+        assert differing_settings(saved, before) == []
+        other = RunConfig.from_dict({**before.for_seed(0), "training": {"start_steps": 600}})
+        assert differing_settings(other, before) == ["training"]
+        toy = dataclasses.replace(saved, training=dataclasses.replace(saved.training, exploration="toy"))
+        assert differing_settings(toy, before) == ["training"]
+    finally:
+        methods.unregister(ToyNoise)

@@ -22,7 +22,7 @@ from ..errors import TrainingDiverged, UserError
 from ..rl.ram import physical_memory, replay_bytes
 from ..rl.tasks import TASK_SPECS, make_env
 from ..rl.training import train
-from ..runs.checkpoint import RESUME_SETTINGS
+from ..runs.checkpoint import differing_settings
 from ..runs.directory import CONFIG, RunDirectory
 from .grid import Grid, GridRun, run_key, task_folder
 
@@ -60,8 +60,7 @@ def run_state(directory: Path, config: RunConfig) -> RunState:
 
 def check_same_settings(directory: Path, config: RunConfig) -> None:
     """UserError unless the run in ``directory`` was started with ``config``'s settings."""
-    saved, recorded = RunDirectory(directory).run_config(), config.recorded()
-    differing = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(recorded, name)]
+    differing = differing_settings(RunDirectory(directory).run_config(), config)
     if differing:
         raise UserError(f"{directory} was run with other settings ({', '.join(differing)}) than this grid; "
                         "repeat the options it was started with, or choose another --out")

@@ -18,6 +18,7 @@ between is completed or undone by :func:`finish_interrupted_commit` on resume.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Mapping
 from typing import Any, Protocol
 
@@ -36,6 +37,25 @@ RESUME_SETTINGS = ("task", "algorithm", "actor", "training", "eval_every", "eval
 """The settings a resumed run must share with its checkpoint. The budget (``steps``) may change: a run resumed
 with a larger ``--steps`` continues to it exactly as a run started with that budget would have (nothing in
 training depends on the budget but where it stops), so a finished 200 000-step run extends to 1 000 000."""
+
+
+def differing_settings(saved: RunConfig, config: RunConfig) -> list[str]:
+    """The :data:`RESUME_SETTINGS` in which ``config``, as its config.json records it (:meth:`RunConfig.recorded`),
+    differs from the ``saved`` run's. Groups of settings compare by their values: a field at its default counts as
+    unset, so training settings made before a method was registered (without its fields) equal the same settings
+    made after."""
+    recorded = config.recorded()
+    return [name for name in RESUME_SETTINGS
+            if _chosen_values(getattr(saved, name)) != _chosen_values(getattr(recorded, name))]
+
+
+def _chosen_values(setting: Any) -> Any:
+    """A dataclass of settings as its fields that differ from their defaults, by name; any other value as it is."""
+    if not dataclasses.is_dataclass(setting):
+        return setting
+    fields = ((field.name, field.default if field.default_factory is dataclasses.MISSING else field.default_factory())
+              for field in dataclasses.fields(setting))
+    return {name: getattr(setting, name) for name, default in fields if getattr(setting, name) != default}
 
 
 # ----------------------------------------------------------------------------- per-seed slices
@@ -196,8 +216,7 @@ def check_resumable(directory: RunDirectory, state: dict[str, Any], config: RunC
     if state.get("format") != CHECKPOINT_FORMAT or state.get("version") != FORMAT_VERSION:
         raise UserError(f"{directory.file(CHECKPOINT)} is not an ilcsan training checkpoint (format "
                         f"{state.get('format')!r} v{state.get('version')})")
-    saved, recorded = RunConfig.from_dict(state["config"]), config.recorded()
-    mismatch = [name for name in RESUME_SETTINGS if getattr(saved, name) != getattr(recorded, name)]
+    mismatch = differing_settings(RunConfig.from_dict(state["config"]), config)
     if mismatch:
         raise UserError(f"{directory.path} was trained with different settings ({', '.join(mismatch)}); resume "
                         "with the same command, or choose another --out")
