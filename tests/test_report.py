@@ -82,6 +82,23 @@ def test_each_seed_run_shows_its_training_wall_time_when_recorded(tmp_path: Path
     assert (rows["0"][column], rows["1"][column]) == ("5.2 h", "—")
 
 
+def test_each_seed_run_shows_its_training_speed_after_the_first_evaluation(tmp_path: Path) -> None:
+    """Median and range of steps/s over the evaluations after the first (which holds the start); a run whose
+    metrics.csv has no speed column shows —."""
+    run = intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3400, 3300, 3200])
+    speeds = [3.0, 400.0, 300.0, 5.0, 350.0]  # started (3), trained, stopped (5)
+    (run / "metrics.csv").write_text("\n".join(
+        [HEADER] + [f"{(i + 1) * 10_000},{value},1.0,1000,{i + 1.0},{speed}"
+                    for i, (value, speed) in enumerate(zip([1000, 3500, 3400, 3300, 3200], speeds, strict=True))]))
+    bare = intra_run(tmp_path, "Hopper", "intra", 1, [900, 3400])
+    (bare / "metrics.csv").write_text("step,eval_return_mean\n10000,900\n20000,3400\n")
+    lines = render_markdown(build_table(collect_runs(tmp_path), "intra")).splitlines()
+    header = next(line for line in lines if line.startswith("| Row | Task | Seed |")).split(" | ")
+    rows = {line.split(" | ")[2]: line.split(" | ") for line in lines if line.startswith("| I\\_intra | Hopper |")}
+    column = header.index("Steps/s, median (range)")
+    assert (rows["0"][column], rows["1"][column]) == ("325 (5–400)", "—")
+
+
 def test_a_one_seed_cell_shows_its_mean_without_a_spread(tmp_path: Path) -> None:
     intra_run(tmp_path, "Hopper", "intra", 0, [1000, 3500, 3200])
     cell = build_table(collect_runs(tmp_path), "intra").cell("intra", "Hopper")

@@ -42,7 +42,7 @@ from ..config import (
 )
 from ..errors import UserError
 from ..methods import DEFAULT_ALGORITHM, unused_settings
-from ..runs.directory import CONFIG, METRICS, RESULT, RunDirectory, RunFileError
+from ..runs.directory import CONFIG, DIAGNOSTICS, METRICS, RESULT, RunDirectory, RunFileError
 from ..snn.diagnostics import is_stuck
 
 
@@ -74,6 +74,9 @@ class RunRecord:
     diagnostics: Mapping[str, tuple[float, ...]] = field(default_factory=dict, hash=False, compare=False)
     """Each diagnostic column of ``metrics.csv`` (:data:`~ilcsan.runs.directory.DIAGNOSTICS`) at each of ``steps``,
     NaN where it was not measured."""
+    steps_per_second: tuple[float, ...] = field(default=(), hash=False, compare=False)
+    """The training speed ``metrics.csv`` records at each of ``steps`` (environment steps per second of wall time since
+    the evaluation before; NaN where not recorded)."""
     wall_seconds: float | None = field(default=None, hash=False, compare=False)
     """Wall-clock time of the training process to ``steps_done`` (result.json; seeds stacked in one process share
     it), None when not recorded."""
@@ -200,7 +203,8 @@ def read_run(directory: str | Path) -> RunRecord:
         best_return=best_return, best_step=best_step, steps_done=steps_done, steps_total=steps_total,
         finished=finished, steps=steps, returns=returns, training=training,
         algorithm=str(config.get("algorithm") or DEFAULT_ALGORITHM),
-        diagnostics={name: values for name, values in columns.items() if name != "eval_return_mean"},
+        diagnostics={name: columns[name] for name in DIAGNOSTICS if name in columns},
+        steps_per_second=columns.get("steps_per_second", ()),
         wall_seconds=_wall_seconds(result), provenance=_provenance(run),
         contact_forces=str(config.get("contact_forces") or RECORDED_BEFORE_CONTACT_FORCES),
     )

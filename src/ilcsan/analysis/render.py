@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import statistics
 from collections import Counter
 from collections.abc import Sequence
 
@@ -224,7 +225,7 @@ def _md_seeds(result: TableResult) -> list[str]:
     if not runs:
         return []
     stuck = sum(run.stuck for _, _, run in runs)
-    header = ["Row", "Task", "Seed", "Best (step)", "Last", "Steps", "Wall time",
+    header = ["Row", "Task", "Seed", "Best (step)", "Last", "Steps", "Wall time", "Steps/s, median (range)",
               *(DIAGNOSTIC_HEADERS[name] for name in DIAGNOSTICS), "Stuck"]
     lines = [f"Seed runs of `{result.name or result.caption}` ({len(runs)}; stuck at their last evaluations: {stuck}). "
              "Diagnostics at the last evaluation: share of saturated actions, of output neurons with the same spike "
@@ -232,14 +233,26 @@ def _md_seeds(result: TableResult) -> list[str]:
              "output|, and the action spread (the largest range of an action component over the evaluation, in units "
              "of its full range); stuck = one constant saturated action at the last "
              f"{STUCK_EVALUATIONS} evaluations after the random phase. Wall time: the training process's to the "
-             "steps done, resumes included (seeds stacked in one process share it).", "",
+             "steps done, resumes included (seeds stacked in one process share it). Steps/s: the training speed "
+             "between evaluations after the first (which holds the start and compilation), median and range; a "
+             "range reaching far below the median shows time the process did not train (stopped, restarting to "
+             "resume, or sharing its core).", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row, cell, run in runs:
         values = [_md_escape(row.label), cell.task, str(run.seed), f"{run.best_return:.1f} ({_steps(run.best_step)})",
                   f"{run.returns[-1]:.1f}" if run.returns else "—", _steps(run.steps_done), _hours(run.wall_seconds),
-                  *(_diagnostic(run, name) for name in DIAGNOSTICS), "**stuck**" if run.stuck else ""]
+                  _speed(run.steps_per_second), *(_diagnostic(run, name) for name in DIAGNOSTICS),
+                  "**stuck**" if run.stuck else ""]
         lines.append("| " + " | ".join(values) + " |")
     return [*lines, ""]
+
+
+def _speed(steps_per_second: Sequence[float]) -> str:
+    """Median (min–max) of the speeds after the first evaluation; "—" when none was recorded."""
+    speeds = [value for value in steps_per_second[1:] if math.isfinite(value)]
+    if not speeds:
+        return "—"
+    return f"{statistics.median(speeds):.0f} ({min(speeds):.0f}–{max(speeds):.0f})"
 
 
 def _hours(seconds: float | None) -> str:

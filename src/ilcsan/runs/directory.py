@@ -60,6 +60,8 @@ METRIC_FIELDS: tuple[str, ...] = (
 """The columns of ``metrics.csv``, one row per evaluation: the evaluation, the training speed, and the actor's
 diagnostics (:data:`DIAGNOSTICS`; empty for runs written before they existed)."""
 REQUIRED_METRICS: tuple[str, ...] = ("step", "eval_return_mean")
+READ_METRICS: tuple[str, ...] = (*DIAGNOSTICS, "steps_per_second")
+"""The optional columns of ``metrics.csv`` that :meth:`RunDirectory.evaluation_columns` reads beside the return."""
 """The columns a ``metrics.csv`` must have to be read (older or foreign files may lack the others)."""
 
 
@@ -146,8 +148,8 @@ class RunDirectory:
 
     def evaluation_columns(self) -> tuple[tuple[int, ...], dict[str, tuple[float, ...]]]:
         """Steps of ``metrics.csv`` sorted by step (a repeated step keeping its last line) and, aligned with them,
-        ``eval_return_mean`` and each diagnostic column (NaN where a row leaves it empty or the file has no such
-        column); empty when the file is absent (RunFileError when damaged)."""
+        ``eval_return_mean`` and each column of :data:`READ_METRICS` (NaN where a row leaves it empty or the file has
+        no such column); empty when the file is absent (RunFileError when damaged)."""
         path = self.file(METRICS)
         if not path.exists():
             return (), {}
@@ -266,7 +268,7 @@ def _read_metrics(text: str) -> tuple[tuple[int, ...], dict[str, tuple[float, ..
         if name not in header:
             raise RunFileError(f"{METRICS}: the header has no {name!r} column")
     i_step, i_return = header.index("step"), header.index("eval_return_mean")
-    optional = {name: header.index(name) for name in DIAGNOSTICS if name in header}
+    optional = {name: header.index(name) for name in READ_METRICS if name in header}
     by_step: dict[int, float] = {}
     diagnostics: dict[int, dict[str, float]] = {}
     for number, line in enumerate(lines[1:], start=2):
@@ -284,6 +286,6 @@ def _read_metrics(text: str) -> tuple[tuple[int, ...], dict[str, tuple[float, ..
         raise RunFileError(f"{METRICS}: no evaluation rows")
     ordered = sorted(by_step)
     columns = {"eval_return_mean": tuple(by_step[step] for step in ordered)}
-    for name in DIAGNOSTICS:
+    for name in READ_METRICS:
         columns[name] = tuple(diagnostics[step].get(name, math.nan) for step in ordered)
     return tuple(ordered), columns
