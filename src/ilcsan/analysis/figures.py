@@ -92,7 +92,7 @@ def draw_comparison(result: TableResult, figure: ComparisonFigure, path: str | P
         if not drawn:
             mark_no_runs(axes)
         elif missing:
-            axes.text(0.5, 0.03, "no runs of " + ", ".join(missing), ha="center", va="bottom",
+            axes.text(0.03, 0.97, "no runs of " + ", ".join(missing), ha="left", va="top",  # clear of the legend
                       transform=axes.transAxes, color="0.4", fontsize=7)
     save_figure(drawing, Path(path))
     return drawing
