@@ -9,6 +9,7 @@ trains (eager and compiled alike), checkpoints and resumes exactly, without a li
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -80,17 +81,15 @@ class ToyNoise(Declared):
 
 @pytest.fixture
 def toy():
-    methods.register(ToyNoise)
-    yield "toy"
-    methods.unregister(ToyNoise)
+    with methods.while_registered(ToyNoise) as name:
+        yield name
 
 
 def toy_training(**options):
-    """The small runs' training settings (:data:`test_training.TINY_TRAINING`) with the toy's exploration, as the
-    training settings made now that the toy is registered."""
-    from test_training import TINY_TRAINING
+    """The small runs' training settings (:func:`test_training.tiny_training`) with the toy's exploration."""
+    from test_training import tiny_training
 
-    return training_config_class()(**{**dataclasses.asdict(TINY_TRAINING), "exploration": "toy", **options})
+    return tiny_training(exploration="toy", **options)
 
 
 def test_registering_makes_the_name_a_setting_and_a_method(toy):
@@ -110,12 +109,10 @@ def test_registering_makes_the_name_a_setting_and_a_method(toy):
 
 def test_unregistering_gives_back_the_same_settings_class():
     plain = training_config_class()
-    methods.register(ToyNoise)
-    try:
+    with pytest.raises(RuntimeError), methods.while_registered(ToyNoise):
         assert training_config_class() is not plain and "toy_width" not in {f.name for f in dataclasses.fields(plain)}
-    finally:
-        methods.unregister(ToyNoise)
-    assert training_config_class() is plain
+        raise RuntimeError("the block fails: the toy is unregistered all the same")
+    assert training_config_class() is plain and "toy" not in methods.registered("exploration")
 
 
 def test_a_registered_method_is_a_flag_a_grid_key_an_identity_and_a_cost(toy, tmp_path, monkeypatch):
@@ -206,8 +203,7 @@ def test_settings_made_before_a_method_was_registered_still_resume_the_run():
     from ilcsan.runs.checkpoint import differing_settings
 
     before = RunConfig(task="Pendulum-v1", training=training_config_class()(start_steps=500))
-    methods.register(ToyNoise)
-    try:
+    with methods.while_registered(ToyNoise):
         saved = RunConfig.from_dict(before.for_seed(0))  # its config.json, read now that the toy is registered
         assert type(saved.training) is not type(before.training) and saved.training.start_steps == 500
         assert differing_settings(saved, before) == []
@@ -215,5 +211,22 @@ def test_settings_made_before_a_method_was_registered_still_resume_the_run():
         assert differing_settings(other, before) == ["training"]
         toy = dataclasses.replace(saved, training=dataclasses.replace(saved.training, exploration="toy"))
         assert differing_settings(toy, before) == ["training"]
-    finally:
-        methods.unregister(ToyNoise)
+
+
+def test_a_run_of_a_method_read_where_it_is_not_registered_is_one_clear_error(tmp_path, capsys):
+    """config.json of a run made with a user's own method holds that method's settings; read where the method is
+    not registered, the run configuration is refused by a UserError that says what to do (not a TypeError), and
+    `train --like` of it exits 2 with that one line."""
+    from ilcsan.cli import main
+    from ilcsan.config import RunConfig
+
+    with methods.while_registered(ToyNoise):
+        recorded = RunConfig(task="Pendulum-v1", training=training_config_class()(exploration="toy")).for_seed(0)
+        assert RunConfig.from_dict(recorded).training.exploration == "toy"
+    with pytest.raises(UserError, match=r"training settings toy_width belong to no registered method: register"):
+        RunConfig.from_dict(recorded)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.json").write_text(json.dumps(recorded))
+    code = main(["train", "--like", str(tmp_path / "run"), "--out", str(tmp_path / "new")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "toy_width belong to no registered method" in err

@@ -7,8 +7,6 @@ learn y = r + γ(1 − d) min_j Q'_j(s', π(s')) with the actor as it is, explor
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 import torch
@@ -17,7 +15,6 @@ from ilcsan import methods
 from ilcsan.cli import build_parser
 from ilcsan.cli.train import build_run_config
 from ilcsan.compute.programs import as_function, as_program, module_tensors
-from ilcsan.config import training_config_class
 from ilcsan.methods import Declared
 from ilcsan.rl.algorithms import OffPolicyAlgorithm
 from ilcsan.rl.training import train
@@ -62,9 +59,8 @@ class Evaluation(Declared):
 
 @pytest.fixture
 def evaluation():
-    methods.register(Evaluation)
-    yield "evaluation"
-    methods.unregister(Evaluation)
+    with methods.while_registered(Evaluation) as name:
+        yield name
 
 
 def test_a_registered_algorithm_is_a_choice_of_the_command_line(evaluation, monkeypatch):
@@ -77,10 +73,9 @@ def test_a_registered_algorithm_is_a_choice_of_the_command_line(evaluation, monk
 
 
 def test_a_registered_algorithm_trains_checkpoints_and_resumes_exactly(evaluation, tmp_path, monkeypatch):
-    from test_training import TINY_TRAINING, assert_resumes_to_the_same_curve, tiny_run
+    from test_training import assert_resumes_to_the_same_curve, tiny_run, tiny_training
 
-    # the training settings as made now that the toy is registered (a configuration made before lacks it)
-    training = training_config_class()(**dataclasses.asdict(TINY_TRAINING))
+    training = tiny_training()  # the settings as made now that the toy is registered (made before, they lack it)
     config = tiny_run(seeds=(0, 1), steps=450, algorithm=evaluation, training=training)
     checkpoints = assert_resumes_to_the_same_curve(config, tmp_path, monkeypatch)
     for straight, resumed in checkpoints:

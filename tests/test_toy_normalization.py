@@ -57,9 +57,8 @@ class Shift(Declared):
 
 @pytest.fixture
 def toy_shift():
-    methods.register(Shift)
-    yield "toy-shift"
-    methods.unregister(Shift)
+    with methods.while_registered(Shift) as name:
+        yield name
 
 
 def shifted(actor, seed: int = 3) -> None:

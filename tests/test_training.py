@@ -18,7 +18,16 @@ from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import Trainer, train
 
-TINY_TRAINING = TrainingConfig(start_steps=150, update_after=100, update_every=25, batch_size=16)
+TINY_TRAINING_VALUES = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
+TINY_TRAINING = TrainingConfig(**TINY_TRAINING_VALUES)
+
+
+def tiny_training(**options):
+    """:data:`TINY_TRAINING` as the training settings of the methods registered now (a test's own method included:
+    TINY_TRAINING's class is the one of the methods registered when this module was imported)."""
+    from ilcsan.config import training_config_class
+
+    return training_config_class()(**{**TINY_TRAINING_VALUES, **options})
 
 
 def tiny_run(**overrides) -> RunConfig:

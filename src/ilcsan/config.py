@@ -319,7 +319,13 @@ class TrainingProtocol:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainingProtocol:
+        """The settings a config.json or checkpoint holds; a UserError when it holds settings no registered method
+        declares (a run made with a method of the user's own, read where it is not registered)."""
         values = dict(data)
+        unknown = sorted(set(values) - {item.name for item in dataclasses.fields(cls)})
+        if unknown:
+            raise UserError(f"the run's training settings {', '.join(unknown)} belong to no registered method: "
+                            "register the method that declares them (ilcsan.methods.register) before reading it")
         if "critic_hidden" in values:
             values["critic_hidden"] = tuple(values["critic_hidden"])
         return cls(**values)

@@ -15,8 +15,10 @@ kind's default, the ILC-SAN paper's choice (:data:`DEFAULT_ALGORITHM`, :data:`NO
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
+from collections.abc import Iterator
 from typing import Any
 
 from ..errors import UserError
@@ -26,7 +28,7 @@ from .defaults import DEFAULT_ALGORITHM, NO_NORMALIZATION
 
 __all__ = ["DEFAULT_ALGORITHM", "KINDS", "KINDS_CHOSEN_BY_TRAINING", "NO_NORMALIZATION", "Declared", "MethodProducts",
            "check_run", "declared", "default", "either", "every", "of_run", "papers", "register", "registered",
-           "relative_cost", "selected", "unregister", "unused_settings"]
+           "relative_cost", "selected", "unregister", "unused_settings", "while_registered"]
 
 _REGISTRY: dict[str, dict[str, type[Declared]]] = {kind: {} for kind in KINDS}
 
@@ -54,6 +56,17 @@ def register(method: type[Declared]) -> type[Declared]:
 def unregister(method: type[Declared]) -> None:
     """Undo :func:`register` (a test's own method)."""
     del _REGISTRY[method.kind][method.name]
+
+
+@contextlib.contextmanager
+def while_registered(method: type[Declared]) -> Iterator[str]:
+    """:func:`register` ``method`` for the ``with`` block (a test's, or a notebook's trial), then :func:`unregister`
+    it, whatever the block raised; yields its name."""
+    register(method)
+    try:
+        yield method.name
+    finally:
+        unregister(method)
 
 
 def registered(kind: str) -> dict[str, type[Declared]]:
