@@ -19,8 +19,10 @@ from ilcsan.snn.diagnostics import (
     EvaluationActions,
     constant_saturated_action,
     diagnose_actor,
+    is_stuck,
     output_diagnostics,
     saturated_share,
+    stuck_reason,
 )
 from ilcsan.snn.output import ActorOutput
 
@@ -102,6 +104,22 @@ def test_a_working_actor_does_not():
     counter = EvaluationActions(2, np.array([2.0, 2.0]), np.zeros(2))
     counter.observe(actions, np.ones(actions.shape[:2], bool))
     assert all(row["action_spread"] > 0.1 and not constant_saturated_action(row) for row in counter.rows())
+
+
+def test_a_constant_action_from_frozen_output_neurons_is_stuck_without_saturating():
+    """As PopSAN's seed 0 on Hopper at 1M: two of three components saturated, one constant action, every output neuron
+    frozen (metrics.csv at every evaluation) is stuck; the same action with outputs that still respond to the state,
+    or any spread, is not; a deep actor (no frozen share) is stuck only when saturated."""
+    popsan = {"saturated_actions": 2 / 3, "action_spread": 0.0, "frozen_output_neurons": 1.0}
+    assert not constant_saturated_action(popsan) and "same spike train" in stuck_reason(popsan)
+    assert stuck_reason({**popsan, "frozen_output_neurons": 0.5}) is None
+    assert stuck_reason({**popsan, "action_spread": 0.2}) is None
+    assert stuck_reason({**popsan, "frozen_output_neurons": float("nan")}) is None  # a deep actor, not saturated
+    assert "saturated" in stuck_reason({"saturated_actions": 1.0, "action_spread": 0.0,
+                                        "frozen_output_neurons": float("nan")})
+    rows = [{"step": step, **popsan} for step in (10_000, 20_000, 30_000, 40_000)]
+    assert is_stuck(rows, start_steps=10_000) and not is_stuck(rows[:3], start_steps=10_000)  # 3 after the random phase
+    assert not is_stuck([*rows, {"step": 50_000, **popsan, "action_spread": 0.3}], start_steps=10_000)
 
 
 def test_diagnosing_leaves_the_global_random_stream_alone():

@@ -96,7 +96,8 @@ class RunRecord:
 
     @property
     def stuck(self) -> bool:
-        """Whether the run ended stuck in one constant saturated action (:func:`~ilcsan.snn.diagnostics.is_stuck`)."""
+        """Whether the run ended stuck in one constant action that almost no gradient moves
+        (:func:`~ilcsan.snn.diagnostics.is_stuck`)."""
         start_steps = self.training.get("start_steps", TrainingProtocol.start_steps)
         return is_stuck(self.evaluation_rows(), start_steps)
 

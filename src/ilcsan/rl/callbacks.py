@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..runs.directory import DIAGNOSTICS
-from ..snn.diagnostics import STUCK_EVALUATIONS, is_stuck
+from ..snn.diagnostics import STUCK_EVALUATIONS, is_stuck, stuck_reason
 
 STATUS_EVERY = 200
 """Steps between two updates of the progress bar's status text."""
@@ -104,9 +104,9 @@ class ProgressReport:
                 self.reported_stuck.add(index)
                 self._write(
                     f"[{config.task} {config.label or config.actor.preset}] seed {config.seeds[index]} is stuck: at "
-                    f"its last {STUCK_EVALUATIONS} evaluations it acted with one constant, saturated action (every "
-                    "output neuron fires the same train for every state and tanh is flat), so almost no gradient "
-                    "reaches the actor; such a seed rarely recovers (see metrics.csv's diagnostics)")
+                    f"its last {STUCK_EVALUATIONS} evaluations it acted with "
+                    f"{stuck_reason(trainer.evaluations[index][-1])}, so almost no gradient reaches the actor; such a "
+                    "seed rarely recovers (see metrics.csv's diagnostics)")
 
     def _write(self, message: str) -> None:
         if self.progress:

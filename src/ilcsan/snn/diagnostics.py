@@ -19,6 +19,10 @@ III-D) is the only way back. Five numbers per seed, measured at every evaluation
 A seed acts with a *constant saturated action* (:func:`constant_saturated_action`) when nearly every evaluation
 action is saturated and no action component moves by more than a hundredth of its range: the same corner of the
 action box for every state (a few output neurons may still respond to the state without moving a saturated action).
+It is *stuck* (:func:`is_stuck`) when, at its last evaluations, it acted with one constant action that almost no
+gradient can move (:func:`stuck_reason`): saturated (tanh is flat there), or decoded from output neurons that fire the
+same spike trains for every state (the surrogate gradient then sees no state; PopSAN's firing-rate decoder on Hopper
+does this without saturating every component).
 """
 
 from __future__ import annotations
@@ -104,14 +108,33 @@ def diagnose_actor(actor, states: torch.Tensor) -> list[dict[str, float]]:
 
 
 STUCK_EVALUATIONS = 3
-"""Evaluations in a row after the random phase with one constant saturated action before a seed counts as stuck."""
+"""Evaluations in a row after the random phase with one stuck action (:func:`stuck_reason`) before a seed counts as
+stuck."""
+CONSTANT_FROZEN_SHARE = 0.99
+"""The share of frozen output neurons from which, with an action spread below :data:`CONSTANT_SPREAD`, a seed's
+constant action comes from spike trains that do not depend on the state."""
 
 
 def is_stuck(rows: Sequence[Mapping[str, float]], start_steps: int) -> bool:
     """Whether the last :data:`STUCK_EVALUATIONS` evaluation rows after the random phase (step > ``start_steps``)
-    each acted with one constant saturated action (:func:`constant_saturated_action`)."""
+    each acted with one constant action that almost no gradient can move (:func:`stuck_reason`)."""
     recent = [row for row in rows if row.get("step", 0) > start_steps][-STUCK_EVALUATIONS:]
-    return len(recent) == STUCK_EVALUATIONS and all(constant_saturated_action(row) for row in recent)
+    return len(recent) == STUCK_EVALUATIONS and all(stuck_reason(row) for row in recent)
+
+
+def stuck_reason(row: Mapping[str, float]) -> str | None:
+    """Why an evaluation row's seed acted with one constant action that almost no gradient can move, in words, or
+    None: the action is saturated (:func:`constant_saturated_action`), or it is constant (spread below
+    :data:`CONSTANT_SPREAD`) and at least :data:`CONSTANT_FROZEN_SHARE` of the output neurons fire the same spike
+    train for every state (False for rows without these measurements, e.g. a deep actor's frozen share)."""
+    if constant_saturated_action(row):
+        return "one constant, saturated action (tanh is flat there)"
+    frozen, spread = row.get("frozen_output_neurons"), row.get("action_spread")
+    if frozen is None or spread is None or not (np.isfinite(frozen) and np.isfinite(spread)):
+        return None
+    if frozen >= CONSTANT_FROZEN_SHARE and spread < CONSTANT_SPREAD:
+        return "one constant action decoded from output neurons that fire the same spike train for every state"
+    return None
 
 
 def constant_saturated_action(row: Mapping[str, float]) -> bool:
