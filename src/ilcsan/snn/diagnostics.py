@@ -126,7 +126,7 @@ def stuck_reason(row: Mapping[str, float]) -> str | None:
     """Why an evaluation row's seed acted with one constant action that almost no gradient can move, in words, or
     None: the action is saturated (:func:`constant_saturated_action`), or it is constant (spread below
     :data:`CONSTANT_SPREAD`) and at least :data:`CONSTANT_FROZEN_SHARE` of the output neurons fire the same spike
-    train for every state (False for rows without these measurements, e.g. a deep actor's frozen share)."""
+    train for every state (None for rows without these measurements, e.g. a deep actor's frozen share)."""
     if constant_saturated_action(row):
         return "one constant, saturated action (tanh is flat there)"
     frozen, spread = row.get("frozen_output_neurons"), row.get("action_spread")
