@@ -4,7 +4,7 @@ Every test runs as a user's run does by default: 8 000 steps are 7 000 updates, 
 update program and the acting pass (the compilation takes about as long as the 7 000 steps after it). Measured on an
 Intel Xeon (the returns may differ on other CPUs), the evaluations at 1 000 … 8 000 steps were: TD3 float32 −1372,
 −1536, −1421, −1260, −920, −519, −157, −258; the other tests' are in their docstrings. Every row crossed the threshold
-at two evaluations or more, the first at 6 000 or 7 000 steps.
+at two evaluations or more, the first between 4 000 (SAC) and 7 000 steps (CaRe-BN).
 """
 
 from __future__ import annotations
