@@ -14,11 +14,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from ilcsan.cli import main
 from ilcsan.errors import UserError
+from ilcsan.experiments import ray_cluster
 from ilcsan.experiments.backends import LocalBackend, RayBackend, termination_as_ctrl_c
 from ilcsan.experiments.coordinator import run_grid
 from ilcsan.experiments.estimate import estimate_hours, list_tables, method_step_cost, run_step_cost
@@ -427,6 +429,22 @@ def test_what_c_libraries_write_to_stderr_is_captured_and_the_terminal_restored(
     os.write(2, b"after\n")
     assert ray_log.text == "gcs_client.cc: retry 1\ngcs_client.cc: retry 2\n"
     assert capfd.readouterr().err == "after\n"
+
+
+def test_what_ray_writes_during_a_successful_join_still_reaches_stderr(monkeypatch, capfd):
+    class JoiningRay:  # ray.init as it succeeds with a warning from its C++ client, below sys.stderr
+        @staticmethod
+        def init(**_options):
+            os.write(2, b"WARNING worker.py: the cluster's object store is 90% full\n")
+
+        @staticmethod
+        def get_runtime_context():
+            return SimpleNamespace(gcs_address="10.0.0.5:6379")
+
+    monkeypatch.setattr(ray_cluster, "import_ray", lambda: JoiningRay)
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    assert ray_cluster.join_ray_cluster("auto") == "the Ray cluster at 10.0.0.5:6379 (no authentication)"
+    assert capfd.readouterr().err == "WARNING worker.py: the cluster's object store is 90% full\n"
 
 
 def test_an_address_that_is_not_host_port_or_has_nothing_listening_is_one_sentence():

@@ -92,7 +92,8 @@ def ray_node_address() -> str:
 def join_ray_cluster(address: str) -> str:
     """Connect this process to the Ray cluster at ``address`` (``HOST:PORT`` or ``auto``); returns what joined it
     ("the Ray cluster at HOST:PORT (token authentication)"), or raises a UserError of one line
-    (:func:`join_failure`)."""
+    (:func:`join_failure`). What Ray wrote while joining is read for the error's cause; after a successful join it
+    is passed on to stderr, so that Ray's warnings still reach the user."""
     ray = import_ray()
     if address != "auto":
         check_listening(address)
@@ -105,6 +106,8 @@ def join_ray_cluster(address: str) -> str:
             failure = error
     if failure is not None:
         raise UserError(join_failure(address, failure, ray_log.text, token)) from None
+    if ray_log.text:
+        sys.stderr.write(ray_log.text)
     joined = ray.get_runtime_context().gcs_address
     return f"the Ray cluster at {joined} ({'token' if token else 'no'} authentication)"
 
