@@ -3,7 +3,6 @@ firing rates measured on a hand-made actor equal the hand-computed ones."""
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
@@ -24,6 +23,7 @@ from ilcsan.analysis.energy import (
     synaptic_layers,
 )
 from ilcsan.analysis.energy_tables import TASK_ORDER, energy_table
+from ilcsan.cli import build_parser
 from ilcsan.cli.grid_commands import cmd_energy
 from ilcsan.errors import UserError
 from ilcsan.paper.published import ENERGY_NJ, FIRING_RATES, OP_COUNTS
@@ -212,14 +212,14 @@ def test_energy_table_averages_runs_of_one_actor():
 
 
 def test_cmd_energy_on_a_trained_run(trained_run, capsys):
-    args = argparse.Namespace(runs=[str(trained_run)], episodes=1, seed=0, json=True)
+    args = build_parser().parse_args(["energy", str(trained_run), "--json"])
     assert cmd_energy(args) == 0
     data = json.loads(capsys.readouterr().out)
     (run,) = data["runs"]
     assert run["label"] == "ilc-san" and run["inferences"] == 200
     assert [layer["name"] for layer in run["layers"]] == ["FC1", "FC2", "FC3", GROUP_FC, INTRA_FC]
     assert run["total_sop"] > 0 and run["total_flop"] == 0
-    args = argparse.Namespace(runs=[str(trained_run), str(trained_run)], episodes=1, seed=0, json=False)
+    args = build_parser().parse_args(["energy", str(trained_run), str(trained_run)])
     assert cmd_energy(args) == 0
     text = capsys.readouterr().out
     assert "Energy per inference" in text and "Table op" in text and "Table power" in text
@@ -227,9 +227,9 @@ def test_cmd_energy_on_a_trained_run(trained_run, capsys):
 
 def test_cmd_energy_user_errors(tmp_path):
     with pytest.raises(UserError):
-        cmd_energy(argparse.Namespace(runs=[str(tmp_path / "missing")], episodes=1, seed=0, json=False))
-    with pytest.raises(UserError):
-        cmd_energy(argparse.Namespace(runs=[], episodes=1, seed=0, json=False))
+        cmd_energy(build_parser().parse_args(["energy", str(tmp_path / "missing")]))
+    with pytest.raises(UserError, match="the following arguments are required: runs"):
+        build_parser().parse_args(["energy"])
     with pytest.raises(UserError, match="episodes"):
         firing_rates(hand_made_policy(), "Pendulum-v1", episodes=0)
 

@@ -9,7 +9,6 @@ import json
 import math
 import re
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,6 +18,7 @@ from ilcsan.analysis.curves import curve, plot_curves, smooth, smoothing_window
 from ilcsan.analysis.render import format_stat, render_csv, render_latex, render_markdown
 from ilcsan.analysis.report import write_report
 from ilcsan.analysis.reward_tables import build_table, report_tables
+from ilcsan.cli import build_parser
 from ilcsan.cli.grid_commands import cmd_report
 from ilcsan.config import actor_config
 from ilcsan.experiments.grid import report_layout
@@ -520,8 +520,7 @@ def test_cmd_report_accepts_a_grid_file_and_rejects_unknown_tables(tmp_path: Pat
     grid = tmp_path / "mine.toml"
     grid.write_text('name = "mine"\ntasks = ["Hopper", "Ant"]\n[[rows]]\nslug = "ilc"\nlabel = "ILC-SAN"\n'
                     'preset = "ilc-san"\n')
-    args = SimpleNamespace(directory=str(runs), table=str(grid), out=str(tmp_path / "out"), collapse=None,
-                           collapse_return=100.0)
+    args = build_parser().parse_args(["report", str(runs), "--table", str(grid), "--out", str(tmp_path / "out")])
     assert cmd_report(args) == 0
     assert "1 run(s) found" in capsys.readouterr().out
     markdown = (tmp_path / "out" / "report.md").read_text()

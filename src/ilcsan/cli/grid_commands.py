@@ -60,7 +60,7 @@ def cmd_reproduce(args) -> int:
     if grid.runs:  # a bad --matmul: one line before any worker starts (devices are checked by the workers)
         validate_run(dataclasses.replace(grid.runs[0].config, device="cpu"))
     RunDirectory(grid.root).check_writable()  # an unwritable or full --out: one line before any worker starts
-    summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=getattr(args, "dashboard", False))
+    summary = run_grid(grid, args.backend, args.workers, args.address, dashboard=args.dashboard)
     if summary.interrupted:
         return 130
     if summary.failed:
@@ -83,7 +83,7 @@ def cmd_report(args) -> int:
     """``ilcsan report DIR [DIR...] [--table NAME|GRID.toml] [--out DIR]``: write the report, print where it is, how
     its cells stand beside the paper's and what tells its rows apart."""
     from ..analysis.collect import folders_of, scan_runs
-    from ..analysis.comparison import BOOTSTRAP_REPS, BOOTSTRAP_SEED, Bootstrap
+    from ..analysis.comparison import Bootstrap
     from ..analysis.report import comparison_lines, runs_of_seeds, write_scanned_report
     from ..experiments.grid import report_layout
 
@@ -94,16 +94,15 @@ def cmd_report(args) -> int:
     scan = scan_runs(folders)
     if not scan.runs:
         raise UserError(_no_runs_message(where, scan.skipped))
-    seeds = parse_seeds(args.seeds) if getattr(args, "seeds", None) else None
+    seeds = parse_seeds(args.seeds) if args.seeds else None
     runs = runs_of_seeds(scan.runs, seeds)
     if not runs:
         found = sorted({run.seed for run in scan.runs})
         raise UserError(f"no runs of seeds {args.seeds} below {where}; the runs there have seeds "
                         f"{', '.join(map(str, found))}")
     table = report_layout(args.table, runs)
-    collapse_steps = parse_steps(args.collapse) if getattr(args, "collapse", None) else ()
-    bootstrap = Bootstrap(getattr(args, "bootstrap_reps", BOOTSTRAP_REPS),
-                          getattr(args, "bootstrap_seed", BOOTSTRAP_SEED))
+    collapse_steps = parse_steps(args.collapse) if args.collapse else ()
+    bootstrap = Bootstrap(args.bootstrap_reps, args.bootstrap_seed)
     try:
         written = write_scanned_report(scan, Path(args.out) if args.out else folders[0], table, collapse_steps,
                                        args.collapse_return, seeds, bootstrap)
@@ -141,15 +140,12 @@ def cmd_energy(args) -> int:
     from ..analysis.energy import COSTS, measure_energy
     from ..analysis.energy_tables import average_reports, energy_table, format_report
 
-    runs = list(getattr(args, "runs", None) or [])
-    if not runs:
-        raise UserError("pass at least one run directory or policy.pt")
-    episodes, seed = int(getattr(args, "episodes", 1)), int(getattr(args, "seed", 0))
+    runs, episodes, seed = args.runs, args.episodes, args.seed
     reports = []
     for run in runs:
         policy = load(run)
         reports.append(measure_energy(policy, episodes, seed, source=str(run)))
-    if getattr(args, "json", False):
+    if args.json:
         print(json.dumps({"runs": [r.to_dict() for r in reports],
                           "averaged": [r.to_dict() for r in average_reports(reports)],
                           "costs": [c._asdict() for c in COSTS]}, indent=2))
