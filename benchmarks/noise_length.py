@@ -1,6 +1,7 @@
 """NoisySAN's per-episode noise series: time to draw one at the length an episode needs (Hopper: 1 001 actions × T = 5
 = 5 005 samples, prime factors 5·7·11·13) against the next length with prime factors up to 7 (5 040), which the runs
-use (``ilcsan.snn.noise.fft_length``). One thread, the rounds alternating; prints min and median ms and their ratio.
+use (``ilcsan.rl.methods.coloured_noise.fft_length``). One thread, the rounds alternating; prints min and median ms
+and their ratio.
 
     python benchmarks/noise_length.py [--rounds 15] [--channels 5435]
 """
@@ -14,7 +15,7 @@ import time
 import torch
 from speed import cpu_model
 
-from ilcsan.snn.noise import coloured_noise, fft_length
+from ilcsan.rl.methods.coloured_noise import coloured_noise, fft_length
 
 
 def main() -> None:

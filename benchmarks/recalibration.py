@@ -2,7 +2,7 @@
 through the actor per layer (its definition), side by side in one run, alternating rounds.
 
 A recalibration replays RECALIBRATION_BATCHES minibatches of RECALIBRATION_BATCH_SIZE states and pools each layer's
-statistics over them, layer by layer (:func:`ilcsan.snn.normalization.recalibrated_statistics`). The actor is
+statistics over them, layer by layer (:func:`ilcsan.rl.methods.care_bn.recalibrated_statistics`). The actor is
 ILC-SAN's (2×256, T = 5) on a task's state and action sizes, float32, one torch thread, eager as in training. Run it on
 an otherwise idle machine:
 
@@ -21,9 +21,13 @@ from speed import cpu_model
 
 from ilcsan.actors import build_actor
 from ilcsan.config import actor_config
-from ilcsan.rl.methods.care_bn import RECALIBRATION_BATCH_SIZE, RECALIBRATION_BATCHES
+from ilcsan.rl.methods.care_bn import (
+    RECALIBRATION_BATCH_SIZE,
+    RECALIBRATION_BATCHES,
+    pool_statistics,
+    recalibrated_statistics,
+)
 from ilcsan.rl.tasks import TASK_SPECS
-from ilcsan.snn.normalization import pool_statistics, recalibrated_statistics
 from ilcsan.snn.output import PassOptions
 
 

@@ -13,6 +13,7 @@ from ilcsan.actors import build_actor
 from ilcsan.config import ActorConfig, actor_config
 from ilcsan.deploy.state import export_state
 from ilcsan.errors import UserError
+from ilcsan.rl.methods.care_bn import kalman_update, kalman_update_, pool_statistics, recalibrated_statistics
 from ilcsan.runs.checkpoint import module_state
 from ilcsan.snn.actor import SpikingActor
 from ilcsan.snn.normalization import (
@@ -21,11 +22,7 @@ from ilcsan.snn.normalization import (
     RunningStatistics,
     batch_statistics,
     fold_into_linear,
-    kalman_update,
-    kalman_update_,
     normalize,
-    pool_statistics,
-    recalibrated_statistics,
 )
 from ilcsan.snn.output import PassOptions
 

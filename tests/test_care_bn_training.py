@@ -17,10 +17,10 @@ from ilcsan.deploy.policy import load
 from ilcsan.errors import UserError
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import DDPG, SAC, TD3
+from ilcsan.rl.methods.care_bn import kalman_update
 from ilcsan.rl.training import Trainer
 from ilcsan.rl.validation import validate_run
 from ilcsan.runs.checkpoint import first_readout, module_state
-from ilcsan.snn.normalization import kalman_update
 from ilcsan.snn.output import PassOptions
 
 SMALL = dict(hidden=(16,), population_in=4, population_out=4, timesteps=3)
@@ -79,7 +79,7 @@ STEP_CASES = ([(TD3, preset, "fast") for preset in SPIKING_PRESETS]
                          ids=[f"{cls.__name__}-{preset}-{engine}" for cls, preset, engine in STEP_CASES])
 def test_an_actor_step_moves_the_running_statistics_by_the_kalman_update_of_its_pass(cls, preset, engine):
     """Critic-only updates leave the statistics alone; the actor step moves them by
-    :func:`~ilcsan.snn.normalization.kalman_update` toward the batch statistics of its loss pass (the actor's
+    :func:`~ilcsan.rl.methods.care_bn.kalman_update` toward the batch statistics of its loss pass (the actor's
     before the step, on the minibatch's B = 16 states). The normalised layers' biases, cancelled by the batch mean,
     stay exactly; the weights move."""
     agent = _agent(cls, preset, engine=engine)

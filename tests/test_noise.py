@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from ilcsan.snn.noise import autocorrelation, coloured_noise, window_covariance
+from ilcsan.rl.methods.coloured_noise import autocorrelation, coloured_noise, window_covariance
 
 
 def _series(beta: float, shape: tuple[int, ...], seed: int) -> np.ndarray:

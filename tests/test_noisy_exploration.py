@@ -14,8 +14,9 @@ from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.errors import UserError
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
+from ilcsan.rl.methods.coloured_noise import autocorrelation, fft_length, window_covariance
 from ilcsan.rl.training import train
-from ilcsan.snn.noise import NeuronNoise, autocorrelation, fft_length, window_covariance
+from ilcsan.snn.noise import NeuronNoise
 from ilcsan.snn.output import PassOptions
 
 SMALL_ACTOR = actor_config("ilc-san", hidden=(16, 16))

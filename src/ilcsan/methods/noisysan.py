@@ -1,6 +1,6 @@
 """NoisySAN (Chen, Peng, Huang, Tian, arXiv 2403.04162) as declared: coloured noise inside the spiking neurons
-explores in place of noise on the action. Training: :mod:`ilcsan.rl.methods.noisysan`; the neurons' side:
-:mod:`ilcsan.snn.noise`."""
+explores in place of noise on the action. Training: :mod:`ilcsan.rl.methods.noisysan` (its series:
+:mod:`ilcsan.rl.methods.coloured_noise`); where the noise enters the neurons: :mod:`ilcsan.snn.noise`."""
 
 from __future__ import annotations
 

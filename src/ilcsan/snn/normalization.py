@@ -14,20 +14,18 @@ neuron update.
 Which (μ, σ²) a layer uses:
 
 * in the actor's loss, the batch's own, :func:`batch_statistics` (gradients flow through them);
-* everywhere else (acting, evaluation, the target actor), the running statistics μ̂, σ̂², which move after each
-  batch-statistics pass by a Kalman-style gain instead of a fixed momentum (:func:`kalman_update`) and are
-  periodically replaced by the exact pooled statistics of many replay batches (:func:`pool_statistics`).
+* everywhere else (acting, evaluation, the target actor), the running statistics μ̂, σ̂² the layer holds. How they
+  are estimated (a Kalman-style gain after each batch-statistics pass, a periodic recalibration on replayed states)
+  is CaRe-BN's training, :mod:`ilcsan.rl.methods.care_bn`: the actor only holds them and normalises with them.
 
 With fixed statistics the normalisation is an affine map X̂ = s X + h (:func:`norm_affine`), which
 :func:`fold_into_linear` moves into the layer's weight and bias, so an exported actor stays additions-only.
 
-Every function here is pure (new tensors out, nothing changed in place) but :func:`kalman_update_`, which writes
-:func:`kalman_update`'s result into the tensors it is given (a layer's buffers, or the training update's views of
-them); :class:`CareBatchNorm` holds one layer's γ, β (parameters) and μ̂, σ̂², P_μ, P_σ² (persistent buffers, ensemble
-dimension K first) and applies them. :class:`LayerNormalizations` is what an actor holds: one such module per
-synaptic layer, built from the class a normalisation's declaration names, with the choice of statistics of each pass
-(:data:`StatisticsChoice`) and the export fold (:meth:`LayerNormalizations.export_fold`);
-:func:`recalibrated_statistics` computes CaRe-BN's exact statistics over replayed states.
+Every function here is pure (new tensors out, nothing changed in place). :class:`CareBatchNorm` holds one layer's
+γ, β (parameters) and μ̂, σ̂², P_μ, P_σ² (persistent buffers, ensemble dimension K first) and applies them.
+:class:`LayerNormalizations` is what an actor holds: one such module per synaptic layer, built from the class a
+normalisation's declaration names, with the choice of statistics of each pass (:data:`StatisticsChoice`) and the
+export fold (:meth:`LayerNormalizations.export_fold`).
 """
 
 from __future__ import annotations
@@ -42,8 +40,6 @@ from ..errors import UserError
 
 EPSILON = 1e-5
 """ε in √(σ² + ε), the authors' value."""
-INNOVATION_MOMENTUM = 0.8
-"""m in P ← m P + (1 − m) δ², the exponential average of the innovation's square (the authors' value)."""
 RUNNING_BUFFERS = ("running_mean", "running_var", "mean_innovation", "var_innovation")
 """The names of :class:`CareBatchNorm`'s persistent buffers μ̂, σ̂², P_μ, P_σ², in :class:`RunningStatistics`'
 order."""
@@ -98,64 +94,6 @@ def normalize(currents: torch.Tensor, statistics: NormStatistics, gamma: torch.T
     return currents * _per_neuron(scale, currents) + _per_neuron(shift, currents)
 
 
-def kalman_update(running: RunningStatistics, batch: NormStatistics, samples: int,
-                  momentum: float = INNOVATION_MOMENTUM) -> RunningStatistics:
-    """One Kalman-style step of the running statistics toward a batch's (pure: returns new tensors).
-
-    For the mean (the variance alike, with σ_B² and σ̂² in place of μ_B and μ̂):
-
-      innovation         δ = μ_B − μ̂
-      its variance       P ← m P + (1 − m) δ²            (m = ``momentum``, 0.8)
-      observation noise  R = σ_B² / (B − 1)              (for the variance: R = 2 (σ_B²)² / (B − 1))
-      gain               K = P / (P + R)                 (0 where P + R = 0: then δ = 0, nothing to move)
-      update             μ̂ ← μ̂ + K δ
-
-    P is updated with this batch's innovation before the gain is formed, as in the authors' code. B = ``samples`` is
-    the number of states in the batch: the authors' code divides by 255 for its batches of 256 states; the T steps of
-    one state are not counted as independent samples. The batch statistics are detached: the running statistics are
-    not trained.
-    """
-    if samples < 2:
-        raise UserError(f"CaRe-BN's running statistics need batches of at least 2 states, got {samples}")
-    batch_mean, batch_var = batch.mean.detach(), batch.var.detach()
-    mean, mean_innovation = _kalman_step(running.mean, running.mean_innovation, batch_mean,
-                                         batch_var / (samples - 1), momentum)
-    var, var_innovation = _kalman_step(running.var, running.var_innovation, batch_var,
-                                       2.0 * batch_var.square() / (samples - 1), momentum)
-    return RunningStatistics(mean, var, mean_innovation, var_innovation)
-
-
-def kalman_update_(running: RunningStatistics, batch: NormStatistics, samples: int,
-                   momentum: float = INNOVATION_MOMENTUM) -> None:
-    """:func:`kalman_update` written into the tensors of ``running``, in place."""
-    for tensor, value in zip(running, kalman_update(running, batch, samples, momentum), strict=True):
-        tensor.copy_(value)
-
-
-def _kalman_step(estimate: torch.Tensor, innovation_var: torch.Tensor, observation: torch.Tensor,
-                 noise: torch.Tensor, momentum: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """(estimate + K δ, P) for δ = observation − estimate, P = m P + (1 − m) δ², K = P / (P + noise)."""
-    innovation = observation - estimate
-    innovation_var = momentum * innovation_var + (1.0 - momentum) * innovation.square()
-    total = innovation_var + noise
-    gain = torch.where(total > 0, innovation_var / total, torch.zeros_like(total))
-    return estimate + gain * innovation, innovation_var
-
-
-def pool_statistics(parts: Sequence[NormStatistics], counts: Sequence[int] | None = None) -> NormStatistics:
-    """The exact μ and biased σ² of the union of several batches from each batch's statistics and size n_i
-    (``counts``; equal sizes when None): μ = Σ n_i μ_i / N, σ² = Σ n_i (σ_i² + (μ_i − μ)²) / N, N = Σ n_i."""
-    if not parts:
-        raise ValueError("pooling needs at least one batch's statistics")
-    means = torch.stack([part.mean for part in parts])
-    variances = torch.stack([part.var for part in parts])
-    weights = torch.as_tensor([1.0] * len(parts) if counts is None else [float(n) for n in counts],
-                              dtype=means.dtype, device=means.device)
-    weights = (weights / weights.sum()).reshape(-1, *([1] * (means.dim() - 1)))
-    mean = (weights * means).sum(dim=0)
-    return NormStatistics(mean, (weights * (variances + (means - mean).square())).sum(dim=0))
-
-
 def fold_into_linear(weight: torch.Tensor, bias: torch.Tensor | None, statistics: NormStatistics,
                      gamma: torch.Tensor, beta: torch.Tensor,
                      eps: float = EPSILON) -> tuple[torch.Tensor, torch.Tensor]:
@@ -176,10 +114,9 @@ class CareBatchNorm(nn.Module):
     the buffers in place.
     """
 
-    def __init__(self, ensemble: int, features: int, threshold: float, eps: float = EPSILON,
-                 momentum: float = INNOVATION_MOMENTUM):
+    def __init__(self, ensemble: int, features: int, threshold: float, eps: float = EPSILON):
         super().__init__()
-        self.threshold, self.eps, self.momentum = threshold, eps, momentum
+        self.threshold, self.eps = threshold, eps
         self.gamma = nn.Parameter(torch.empty(ensemble, features))
         self.beta = nn.Parameter(torch.empty(ensemble, features))
         for name in RUNNING_BUFFERS:
@@ -201,7 +138,8 @@ class CareBatchNorm(nn.Module):
         return NormStatistics(self.running_mean, self.running_var)
 
     def running_state(self) -> RunningStatistics:
-        """μ̂, σ̂², P_μ, P_σ²: what :func:`kalman_update` reads."""
+        """μ̂, σ̂², P_μ, P_σ²: what CaRe-BN's Kalman update reads and writes
+        (:func:`~ilcsan.rl.methods.care_bn.kalman_update`)."""
         return RunningStatistics(self.running_mean, self.running_var, self.mean_innovation, self.var_innovation)
 
     def forward(self, currents: torch.Tensor, statistics: NormStatistics | None = None) -> torch.Tensor:
@@ -225,7 +163,7 @@ class CareBatchNorm(nn.Module):
 
     def extra_repr(self) -> str:
         k, d = self.gamma.shape
-        return f"ensemble={k}, features={d}, eps={self.eps}, momentum={self.momentum}"
+        return f"ensemble={k}, features={d}, eps={self.eps}"
 
 
 class LayerNormalizations(nn.ModuleList):
@@ -288,28 +226,3 @@ def checked_statistics(norms: LayerNormalizations | None, choice: StatisticsChoi
     if len(given) > len(norms):
         raise UserError(f"{len(given)} layers' statistics given, the actor has {len(norms)} layers")
     return given
-
-
-@torch.no_grad()
-def recalibrated_statistics(actor: nn.Module, batches: Sequence[torch.Tensor]) -> tuple[NormStatistics, ...]:
-    """The exact statistics of each layer's currents in a normalising spiking ``actor``
-    (:class:`~ilcsan.snn.actor.SpikingActor`) pooled over all ``batches`` of normalised states (K, B_i, N), layer by
-    layer: layer l's currents over every batch are computed with layers 1..l−1 normalised by their recalibrated
-    statistics, so it takes one pass over the batches per layer, and the pass for layer l stops at layer l's currents
-    (the later layers, the intra-layer loop and the decoder do not run: 1 + 2 + … + L layer products instead of L²).
-    The hidden layers' spikes are the fast engine's, equal to the reference engine's. The actor is unchanged
-    (:meth:`LayerNormalizations.set_running_` installs the result)."""
-    if actor.norms is None:
-        raise UserError("this actor does not normalise its currents (--normalization none)")
-    found: list[NormStatistics] = []
-    for index in range(len(actor.layers)):
-        parts = []
-        for batch in batches:
-            encoded = actor.encoder(batch)
-            values, constant = encoded.values, encoded.constant
-            for before in range(index):
-                currents, _ = actor.layer_currents(before, values, constant, tuple(found))
-                values, constant = actor.layer_spikes(currents, output_layer=False), False
-            parts.append(batch_statistics(actor.layers[index](values)))
-        found.append(pool_statistics(parts, [batch.shape[1] for batch in batches]))
-    return tuple(found)

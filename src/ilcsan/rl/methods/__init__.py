@@ -18,9 +18,10 @@ Two more run under every algorithm (SAC too):
   output added to the actor's loss.
 
 Each method is declared (name, paper, settings, cost, products: :mod:`ilcsan.methods`, torch-free) and registered
-there with one line; its declaration names the class of its hooks here (:mod:`.base`), one module per method, but
-for TD3's own two, the paper's Gaussian action noise and Polyak-averaged target actor, which are TD3's and live beside
-it (:mod:`ilcsan.rl.algorithms.td3`). Every hook has a do-nothing default in :class:`Method`, so a method writes only
+there with one line; its declaration names the class of its hooks here (:mod:`.base`), one module per method (and
+one for the coloured noise series NoisySAN draws, :mod:`.coloured_noise`), but for TD3's own two, the paper's
+Gaussian action noise and Polyak-averaged target actor, which are TD3's and live beside it
+(:mod:`ilcsan.rl.algorithms.td3`). Every hook has a do-nothing default in :class:`Method`, so a method writes only
 what it changes.
 """
 

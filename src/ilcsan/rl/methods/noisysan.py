@@ -1,7 +1,7 @@
 """NoisySAN exploration (Chen, Peng, Huang, Tian, arXiv 2403.04162): noise inside the spiking actor, not on its action.
 Declared (settings, paper, cost) in :mod:`ilcsan.methods.noisysan`.
 
-While training, the actor acts with additive coloured noise (:func:`ilcsan.snn.noise.coloured_noise`, spectral
+While training, the actor acts with additive coloured noise (:mod:`ilcsan.rl.methods.coloured_noise`, spectral
 exponent β = ``noisy_beta``) where :class:`~ilcsan.snn.noise.NeuronNoise` says: in the charge and in the spike
 transmission of every synaptic layer l of width D_l, with the fixed scale σ_l = σ_init/√D_l, and in the decoder's
 drive with a *learned* scale σ_d (one per action dimension, initial σ_init/√M). No Gaussian noise is added to the
@@ -10,9 +10,9 @@ action, and the target actor and every evaluation act without noise.
 Noise channels: per seed C = 2·ΣD_l + M series (charge and transmission of each neuron, then the decoder),
 ordered [charge_1, transmission_1, charge_2, …, decoder]. The i-th action of an episode reads samples iT … iT+T−1
 of series drawn when the episode's first noisy action is taken, at least (episode step limit + 1)·T samples long
-(the authors' script draws exactly that many; here the next length whose FFT is fast, :func:`~ilcsan.snn.noise.
-fft_length`): the noise is correlated across the T steps of an action and across the actions of an
-episode.
+(the authors' script draws exactly that many; here the next length whose FFT is fast,
+:func:`~ilcsan.rl.methods.coloured_noise.fft_length`): the noise is correlated across the T steps of an action and
+across the actions of an episode.
 
 The actor update minimises, per seed,
 
@@ -21,10 +21,10 @@ The actor update minimises, per seed,
 R the seed's latest evaluation return (0 before the first) and R* the task's reference return
 (:data:`~ilcsan.methods.noisysan.RETURN_REFERENCE`): as the actor gets good, the penalty pulls the decoder's noise
 down. The gradient reaches σ_d through ε. Here ε for each minibatch state is a fresh window of T samples of the
-same process — a Gaussian vector with the window covariance of :func:`~ilcsan.snn.noise.window_covariance`, so
-exactly distributed as an exploration window. The authors' script instead replays the noise each transition
-was collected with; that costs C·T floats per transition (5 435 for Hopper: 4.3 GB for a 200 000-step seed),
-which our replay buffer and checkpoints do not carry.
+same process — a Gaussian vector with the window covariance of
+:func:`~ilcsan.rl.methods.coloured_noise.window_covariance`, so exactly distributed as an exploration window. The
+authors' script instead replays the noise each transition was collected with; that costs C·T floats per transition
+(5 435 for Hopper: 4.3 GB for a 200 000-step seed), which our replay buffer and checkpoints do not carry.
 """
 
 from __future__ import annotations
@@ -41,10 +41,11 @@ from ...compute.programs import CompiledPerShape
 from ...config import TrainingProtocol
 from ...methods.noisysan import return_reference
 from ...runs.checkpoint import load_state, slice_state
-from ...snn.noise import NeuronNoise, coloured_noise, fft_length, window_covariance
+from ...snn.noise import NeuronNoise
 from ...snn.output import PassOptions
 from ..adam import Adam
 from .base import Exploration, MethodContext
+from .coloured_noise import coloured_noise, fft_length, window_covariance
 
 NOISY_SALT = 5
 """Offset of the noise generators from a seed (the actor, critic, smoothing noise and proxy use others)."""
