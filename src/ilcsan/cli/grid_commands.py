@@ -140,11 +140,7 @@ def cmd_energy(args) -> int:
     from ..analysis.energy import COSTS, measure_energy
     from ..analysis.energy_tables import average_reports, energy_table, format_report
 
-    runs, episodes, seed = args.runs, args.episodes, args.seed
-    reports = []
-    for run in runs:
-        policy = load(run)
-        reports.append(measure_energy(policy, episodes, seed, source=str(run)))
+    reports = [measure_energy(load(run), args.episodes, args.seed, source=str(run)) for run in args.runs]
     if args.json:
         print(json.dumps({"runs": [r.to_dict() for r in reports],
                           "averaged": [r.to_dict() for r in average_reports(reports)],
