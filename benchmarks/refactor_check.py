@@ -6,8 +6,9 @@ compares the two ``metrics.csv`` files column by column, all but wall time and s
 digit; then it times R more rounds of both, A and B back to back in each round (so a slow phase of the machine hits
 both), and prints per configuration the median wall time of each and B / A with its min and max over rounds.
 
-Configurations: plain TD3, SAC, Proxy Target, NoisySAN, CaRe-BN (ILC-SAN on --task). Run it on an otherwise idle
-machine (the identity part alone is valid on a busy one, with --rounds 0):
+Configurations: plain TD3, SAC, Proxy Target, NoisySAN, CaRe-BN (the preset --actor, ILC-SAN by default, on --task;
+``--actor dan --only td3,sac`` for the deep actor, which takes no spiking method). Run it on an otherwise idle machine
+(the identity part alone is valid on a busy one, with --rounds 0):
 
     git worktree add /tmp/before main~3
     .venv/bin/python benchmarks/refactor_check.py /tmp/before . --task Hopper --steps 3000 --rounds 3
@@ -41,7 +42,7 @@ TIMING_COLUMNS = {"wall_seconds", "steps_per_second"}
 def train(checkout: Path, extra: list[str], options: argparse.Namespace, out: Path) -> float:
     """Train one configuration from ``checkout`` into ``out``; returns the process's wall time in seconds."""
     command = [sys.executable, "-c", "import sys; from ilcsan.cli import main; sys.exit(main())", "train",
-               "--task", options.task, "--actor", "ilc-san", "--seed", "0", "--steps", str(options.steps),
+               "--task", options.task, "--actor", options.actor, "--seed", "0", "--steps", str(options.steps),
                "--eval-every", str(options.steps // 3), "--eval-episodes", "2", "--start-steps",
                str(options.steps // 3), "--update-after", str(options.steps // 3), "--threads", "1",
                "--compile", "on", "--matmul", "float32", "--no-progress", "--out", str(out), *extra]
@@ -75,12 +76,13 @@ def main() -> None:
     parser.add_argument("before", type=Path, help="checkout A (e.g. a git worktree of the commit before the change)")
     parser.add_argument("after", type=Path, help="checkout B")
     parser.add_argument("--task", default="Hopper")
+    parser.add_argument("--actor", default="ilc-san", help="the actor preset every configuration trains")
     parser.add_argument("--steps", type=int, default=3000, help="steps per run (evaluations at each third)")
     parser.add_argument("--rounds", type=int, default=3, help="timed rounds after the identity run (0: none)")
     parser.add_argument("--only", default=",".join(CONFIGURATIONS), help="comma-separated configurations")
     options = parser.parse_args()
     names = options.only.split(",")
-    print(f"CPU: {cpu_model()} · {os.cpu_count()} cores · task {options.task}, "
+    print(f"CPU: {cpu_model()} · {os.cpu_count()} cores · task {options.task}, actor {options.actor}, "
           f"{options.steps} steps, compiled, float32, one thread · A = {options.before}, B = {options.after}")
     print(f"{'configuration':22} {'metrics.csv A vs B':40} {'A s (median)':>12} {'B s (median)':>12} "
           f"{'B / A median (min-max)':>24}")
