@@ -67,9 +67,23 @@ def test_a_row_far_above_is_better_and_the_other_way_round_worse() -> None:
     low, high = scores(spread()), scores(spread(offset=5000.0))
     better = compare(IMPROVEMENT, ("high", high), ("low", low), TASKS, QUICK)
     assert better.interval.estimate == 1.0 and better.interval.low > 0.5
-    assert better.verdict == "better" and better.sentence().endswith(": better")
+    assert better.verdict == "better" and better.unanimous
+    # every pair agrees, so the interval has no width: the sentence says that this is not certainty
+    assert (better.interval.low, better.interval.high) == (1.0, 1.0)
+    assert better.sentence().endswith(": better (every pair of runs agreed, which leaves the bootstrap no other "
+                                      "answer; with 3 seeds per task that is not certainty)")
     worse = compare(IMPROVEMENT, ("low", low), ("high", high), TASKS, QUICK)
-    assert worse.interval.high < 0.5 and worse.verdict == "worse"
+    assert worse.interval.high < 0.5 and worse.verdict == "worse" and worse.unanimous
+
+
+def test_a_row_above_on_most_pairs_has_an_interval_and_no_unanimity_caveat() -> None:
+    low, high = spread(), spread(offset=150.0)
+    high[0, 0] = low[:, 0].min() - 1.0  # one run of the higher row below every run of the other
+    comparison = compare(IMPROVEMENT, ("high", scores(high)), ("low", scores(low)), TASKS, QUICK)
+    assert comparison.interval.low < comparison.interval.high and not comparison.unanimous
+    assert "every pair of runs agreed" not in comparison.sentence()
+    apr_only = compare(APR, ("high", scores(high)), ("DAN", scores(low)), TASKS, QUICK)
+    assert not apr_only.unanimous
 
 
 def test_probability_of_improvement_is_rliables_statistic() -> None:

@@ -291,7 +291,17 @@ class Comparison:
             head, places, unit = f"{self.row} against {self.against}: APR", 1, " %"
         if self.interval is None:
             return f"{head}: not computed: {self.selection.too_few}"
-        return f"{head} = {self.interval.text(places, unit)} on {self.selection.text}: {self.verdict}"
+        caveat = (f" (every pair of runs agreed, which leaves the bootstrap no other answer; with "
+                  f"{_count(self.selection.k, 'seed')} per task that is not certainty)" if self.unanimous else "")
+        return f"{head} = {self.interval.text(places, unit)} on {self.selection.text}: {self.verdict}{caveat}"
+
+    @property
+    def unanimous(self) -> bool:
+        """True for a P(improvement) of exactly 0 or 1: every run of one row above every run of the other on every
+        task, so every bootstrap resample gives the same value and the interval has no width, however few the
+        seeds."""
+        return (self.statistic == IMPROVEMENT and self.interval is not None
+                and self.interval.low == self.interval.high)
 
 
 @dataclass(frozen=True)
