@@ -300,8 +300,7 @@ class Comparison:
         """True for a P(improvement) of exactly 0 or 1: every run of one row above every run of the other on every
         task, so every bootstrap resample gives the same value and the interval has no width, however few the
         seeds."""
-        return (self.statistic == IMPROVEMENT and self.interval is not None
-                and self.interval.low == self.interval.high)
+        return self.statistic == IMPROVEMENT and self.interval is not None and self.interval.estimate in (0.0, 1.0)
 
 
 @dataclass(frozen=True)
