@@ -173,12 +173,13 @@ def _run(algorithm: str, steps: int = 400, **options) -> RunConfig:
 
 @pytest.mark.parametrize("algorithm", ["sac", "ddpg"])
 def test_an_interrupted_run_resumes_exactly(tmp_path, monkeypatch, algorithm):
-    from test_training import interrupt_after_first_checkpoint, read_metrics
+    from test_training import interrupt_after_first_checkpoint, on_the_path_of, read_metrics
 
     config = _run(algorithm)
-    train(config, tmp_path / "straight", progress=False, log=lambda *_: None)
     interrupt_after_first_checkpoint(config, tmp_path / "cut", monkeypatch)
     train(config, tmp_path / "cut", resume=True, progress=False, log=lambda *_: None)
+    straight_config = on_the_path_of(config, tmp_path / "cut" / "seed0")
+    train(straight_config, tmp_path / "straight", progress=False, log=lambda *_: None)
     for seed in ("seed0", "seed1"):
         straight, resumed = (read_metrics(tmp_path / run / seed / "metrics.csv") for run in ("straight", "cut"))
         keep = [key for key in straight[0] if key not in ("wall_seconds", "steps_per_second")]

@@ -231,12 +231,13 @@ def _check_recalibration(trainer: Trainer, plain: Trainer, seeds) -> None:
 def test_an_interrupted_run_resumes_to_the_same_metrics(often, tmp_path, monkeypatch, algorithm):
     """Two seeds, 450 steps, recalibrations at 100, 200, 300 and 400, interrupted after the first checkpoint (step
     150): every row of metrics.csv but the timings is the same."""
-    from test_training import interrupt_after_first_checkpoint, read_metrics
+    from test_training import interrupt_after_first_checkpoint, on_the_path_of, read_metrics
 
     config = _run(algorithm)
-    Trainer(config, tmp_path / "straight", progress=False, log=lambda *_: None).train()
     interrupt_after_first_checkpoint(config, tmp_path / "cut", monkeypatch)
     Trainer(config, tmp_path / "cut", resume=True, progress=False, log=lambda *_: None).train()
+    Trainer(on_the_path_of(config, tmp_path / "cut" / "seed0"), tmp_path / "straight", progress=False,
+            log=lambda *_: None).train()
     for seed in ("seed0", "seed1"):
         straight, resumed = (read_metrics(tmp_path / run / seed / "metrics.csv") for run in ("straight", "cut"))
         keep = [key for key in straight[0] if key not in ("wall_seconds", "steps_per_second")]

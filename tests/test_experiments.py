@@ -550,7 +550,7 @@ def test_cpu_fields_are_read_as_proc_cpuinfo_writes_them(tmp_path):
     (("reproduce", "intra", "--seeds", "3-1"), ("--seeds",)),
     (("reproduce", "intra", "--backend", "slurm"), ("--backend 'slurm'",)),
     (("reproduce", "intra", "--address", "10.0.0.1:6379"), ("--address is for --backend ray",)),
-    (("reproduce", "intra", "--matmul", "fp16"), ("--matmul 'fp16'", "float32, bf16")),
+    (("reproduce", "intra", "--matmul", "fp16"), ("--matmul 'fp16'", "float32, aten, onednn, bf16")),
 ])
 def test_cli_mistakes_are_one_line(capsys, argv, fragments):
     code, _, err = run_cli(capsys, *argv)

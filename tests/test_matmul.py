@@ -24,6 +24,7 @@ from ilcsan.compute.matmul import (
 )
 from ilcsan.compute.programs import DirectProgram, value_and_grads
 from ilcsan.config import RunConfig, TrainingConfig, actor_config
+from ilcsan.errors import UserError
 from ilcsan.rl.matmul_choice import run_products
 from ilcsan.rl.training import Trainer
 from ilcsan.snn.ensemble import EnsembleLinear, EnsembleMLP, seed_generators
@@ -218,6 +219,38 @@ def test_a_resumed_run_keeps_the_path_it_started_on_unless_another_matmul_is_ask
         assert trainer.matmul_choice["path"] == "bf16" and "kept" not in trainer.matmul_choice
     finally:
         trainer.close()
+
+
+def test_a_named_float32_path_is_taken_as_named_and_wins_over_the_one_a_resumed_run_began_on(tmp_path, monkeypatch,
+                                                                                             restore_path):
+    """--matmul aten / onednn: no measurement (it would raise here), the path recorded as named; a run resumed with
+    the path it began on keeps it, with the other one it computes on the one named now."""
+    import ilcsan.rl.matmul_choice as matmul_choice
+    import ilcsan.rl.training as training
+
+    def no_measuring(*_):
+        raise AssertionError("a named path is not measured")
+
+    monkeypatch.setattr(matmul_choice, "measure_paths", no_measuring)
+    config = RunConfig(task="Pendulum-v1", steps=10, eval_every=10, eval_episodes=1, threads=1, matmul="aten",
+                       actor=actor_config("ilc-san", hidden=(8,)),
+                       training=TrainingConfig(start_steps=10, update_after=5))
+    lines: list[str] = []
+    training.train(config, tmp_path / "run", progress=False, log=lines.append)
+    recorded = json.loads((tmp_path / "run" / "config.json").read_text())["matmul_path"]
+    assert recorded == {"path": "aten", "compiled": False, "gflops": {}, "named": True}
+    assert "matmul: aten (as --matmul names it, not measured)" in lines
+    for asked, kept in (("aten", True), *((("onednn", False),) if onednn_available() else ())):
+        resumed = Trainer(RunConfig(**{**config.__dict__, "steps": 20, "matmul": asked}), tmp_path / "run",
+                          resume=True, progress=False, log=lines.append)
+        try:
+            assert resumed.matmul_choice["path"] == asked and bool(resumed.matmul_choice.get("kept")) is kept
+        finally:
+            resumed.close()
+    monkeypatch.setattr(matmul_choice, "onednn_available", lambda: False)
+    with pytest.raises(UserError, match="--matmul onednn: this build of torch has no oneDNN"):
+        Trainer(RunConfig(**{**config.__dict__, "matmul": "onednn"}), tmp_path / "none", progress=False,
+                log=lines.append)
 
 
 def test_a_bf16_run_rounds_only_the_products_it_measured_faster_in_bfloat16(restore_path):

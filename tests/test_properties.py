@@ -121,7 +121,7 @@ PLAUSIBLE = {
     "--encoder": ["pop-det", "pop", "pop-prob", "layer", "two-neuron"], "--neuron": ["clif", "dynamic"],
     "--intra": ["intra", "self", "lateral", "bias", "none"], "--decoder": ["last", "max", "mean", "fr"],
     "--device": ["cpu"], "--engine": ["fast", "reference"], "--compile": ["auto", "off"],
-    "--matmul": ["float32", "bf16"],
+    "--matmul": ["float32", "aten", "onednn", "bf16"],
     "--seeds": ["0", "1", "0-2", "0,3"], "--seed": ["0", "5"], "--format": ["npz", "nir"],
     "--weights": ["float32", "int8"], "--backend": ["local", "ray"], "--table": ["perf", "intra", "<grid>"],
     "--tasks": ["Hopper", "Pendulum-v1"], "--rows": ["dan", "intra"], "--out": ["<fresh>", "<fresh>", "."],

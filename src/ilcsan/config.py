@@ -53,10 +53,13 @@ COMPILE_PAYS_AFTER_UPDATES: dict[str, int] = {"spiking": 4_000, "deep": 25_000}
 the update program and the acting pass costs tens of seconds once (less when inductor's cache holds them) and then
 saves most of each update's time, so it repays itself after a few thousand updates of a spiking actor, and after more
 of DAN's much cheaper ones (``benchmarks/RESULTS.md`` has the measurements behind these thresholds)."""
-# --matmul: "bf16" computes in bfloat16 (float32 accumulation) the products that run faster so, measured at the
-# start of a run (AMX / AVX512-BF16 CPUs; ilcsan.compute.matmul), and on CUDA lets torch use TF32/bf16 tensor cores.
-# Neuron states, spikes, losses and optimiser stay float32 either way.
-MATMUL_CHOICES: tuple[str, ...] = ("float32", "bf16")
+# --matmul: "float32" measures at the start of a run which float32 path (MKL through aten, or oneDNN) is faster on its
+# products; "aten" and "onednn" name the path instead, so that every run of a configuration computes the same way
+# (two runs that measured differently round differently, and their curves part after the first update); "bf16"
+# computes in bfloat16 (float32 accumulation) the products that run faster so, measured at the start of a run (AMX /
+# AVX512-BF16 CPUs; ilcsan.compute.matmul), and on CUDA lets torch use TF32/bf16 tensor cores. Neuron states, spikes,
+# losses and optimiser stay float32 either way.
+MATMUL_CHOICES: tuple[str, ...] = ("float32", "aten", "onednn", "bf16")
 EXPORT_FORMATS: dict[str, str] = {"npz": "deploy bundle for the numpy runtime",
                                   "nir": "a NIR graph for neuromorphic toolchains"}
 """``ilcsan export --format``, each with what it writes."""
@@ -424,9 +427,11 @@ class RunConfig:
                                    "compiled); auto: on when the run has enough updates to repay the compilation "
                                    f"({COMPILE_PAYS_AFTER_UPDATES['spiking']} for spiking actors, "
                                    f"{COMPILE_PAYS_AFTER_UPDATES['deep']} for DAN)", choices=COMPILE_MODES)
-    matmul: str = setting("float32", "matmul precision. float32: the faster of MKL and oneDNN on this run's own "
-                                     "matrix shapes, each as often as a training step computes it, measured at start "
-                                     "(printed, and kept in config.json); bf16: "
+    matmul: str = setting("float32", "matmul precision and path. float32: the faster of MKL and oneDNN on this "
+                                     "run's own matrix shapes, each as often as a training step computes it, measured "
+                                     "at start (printed, and kept in config.json); aten / onednn: float32 on that "
+                                     "path, not measured, so that two runs of a seed compute alike (runs that "
+                                     "measured differently round differently and their curves part); bf16: "
                                      "operands and products rounded to bfloat16 for the product shapes it computes "
                                      "faster on this CPU (AMX/AVX512-BF16), timed at start, float32 for the rest "
                                      "(TF32/bf16 on CUDA)", choices=MATMUL_CHOICES)

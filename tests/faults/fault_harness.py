@@ -12,19 +12,26 @@ Used by the quick CI subset (``tests/faults/test_kill_resume.py``) and the full 
    with :func:`ilcsan.files.safe_torch_load`, and no checkpoint may be older than the last evaluation the
    process reported on stdout (that would be data lost);
 4. runs ``train ... --resume`` to the end (possibly killing it again) and compares each seed's
-   ``metrics.csv`` column ``eval_return_mean`` with an uninterrupted run of the same seed, as text:
-   exact equality.
+   ``metrics.csv`` column ``eval_return_mean`` with an uninterrupted run of the same seed on the same matmul
+   path, as text: exact equality.
+
+A run measures at its start which float32 matmul path is faster and keeps it when resumed; two runs that
+measured differently round differently, so the uninterrupted run a trial is compared with is one on the path
+the trial recorded in its config.json (``--matmul aten`` or ``onednn``, :class:`References`).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import json
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +49,7 @@ class RunSpec:
     start_steps: int = 100
     update_after: int = 100
     task: str = "Pendulum-v1"
+    matmul: str = "float32"
 
     @property
     def seed_list(self) -> list[int]:
@@ -52,7 +60,7 @@ class RunSpec:
                 "--steps", str(self.steps), "--eval-every", str(self.eval_every), "--eval-episodes", "1",
                 "--start-steps", str(self.start_steps), "--update-after", str(self.update_after),
                 "--update-every", "25", "--batch-size", "16", "--hidden-width", "16", "--threads", "1",
-                "--no-progress", "--out", str(out)]
+                "--matmul", self.matmul, "--no-progress", "--out", str(out)]
         return [*argv, "--resume"] if resume else argv
 
     def directories(self, out: Path) -> list[Path]:
@@ -199,6 +207,35 @@ def curves(spec: RunSpec, out: Path) -> dict[int, list[str]]:
     return {seed: curve(directory) for seed, directory in zip(spec.seed_list, spec.directories(out), strict=True)}
 
 
+def matmul_path_of(directory: Path) -> str:
+    """The matmul path a run computed on (``matmul_path`` in its config.json: ``aten``, ``onednn`` or ``bf16``)."""
+    return json.loads((Path(directory) / "config.json").read_text())["matmul_path"]["path"]
+
+
+class References:
+    """Uninterrupted runs of one spec, one per matmul path, each made when a trial first needs it: ``references(path)``
+    is each seed's curve of ``spec`` run with ``--matmul path``, in this process (:func:`reference_in_process`) or
+    with ``processes`` as a separate one (:func:`reference_run`)."""
+
+    def __init__(self, spec: RunSpec, folder: Path, processes: bool = False):
+        self.spec, self.folder, self.processes = spec, Path(folder), processes
+        self.curves: dict[str, dict[int, list[str]]] = {}
+
+    def measured(self) -> tuple[str, float]:
+        """Run the spec as a user would (the path measured at the start, a separate process); its path and wall time."""
+        out = self.folder / "measured"
+        result, seconds = reference_run(self.spec, out)
+        path = matmul_path_of(self.spec.directories(out)[0])
+        self.curves[path] = result
+        return path, seconds
+
+    def __call__(self, path: str) -> dict[int, list[str]]:
+        if path not in self.curves:
+            spec, out = dataclasses.replace(self.spec, matmul=path), self.folder / path
+            self.curves[path] = reference_run(spec, out)[0] if self.processes else reference_in_process(spec, out)
+        return self.curves[path]
+
+
 @dataclass
 class Inspection:
     """What a killed run left on disk."""
@@ -275,6 +312,7 @@ class TrialResult:
     resume_errors: list[str] = field(default_factory=list)
     curves_equal: bool = False
     leftovers: list[str] = field(default_factory=list)
+    matmul_path: str | None = None
     seconds: float = 0.0
 
     @property
@@ -283,10 +321,12 @@ class TrialResult:
         return all(code == 0 for code in self.resume_codes) and self.curves_equal
 
 
-def kill_and_resume(spec: RunSpec, out: Path, points: list[KillPoint], reference: dict[int, list[str]],
-                    name: str = "trial", final_in_process: bool = False) -> TrialResult:
+def kill_and_resume(spec: RunSpec, out: Path, points: list[KillPoint],
+                    reference: Callable[[str], dict[int, list[str]]], name: str = "trial",
+                    final_in_process: bool = False) -> TrialResult:
     """Start a run, kill it at ``points[0]``, resume and kill at the next point, ..., then resume to the end
-    (in a new process, or with ``final_in_process`` through :func:`ilcsan.cli.main` here, which is faster)."""
+    (in a new process, or with ``final_in_process`` through :func:`ilcsan.cli.main` here, which is faster), and
+    compare its curves with ``reference(path)`` (:class:`References`) for the matmul path the run recorded."""
     result = TrialResult(name)
     start = time.monotonic()
     for index, point in enumerate(points):
@@ -310,7 +350,8 @@ def kill_and_resume(spec: RunSpec, out: Path, points: list[KillPoint], reference
         result.resume_errors.append(final.stderr.strip()[-500:])
     else:
         result.leftovers = leftovers(spec, out)
-    result.curves_equal = curves(spec, out) == reference
+        result.matmul_path = matmul_path_of(spec.directories(out)[0])
+        result.curves_equal = curves(spec, out) == reference(result.matmul_path)
     result.seconds = time.monotonic() - start
     return result
 
@@ -394,23 +435,32 @@ def grid_curves(out: Path) -> dict[str, list[str]]:
     return {str(path.parent.relative_to(out)): curve(path.parent) for path in sorted(Path(out).rglob("config.json"))}
 
 
+def grid_paths(out: Path) -> dict[str, str]:
+    """Every run of a grid folder: the matmul path it computed on, by path relative to ``out``."""
+    return {str(path.parent.relative_to(out)): matmul_path_of(path.parent)
+            for path in sorted(Path(out).rglob("config.json"))}
+
+
 def grid_reference_in_process(out: Path, workers: int = 1) -> dict[str, list[str]]:
     """The straight run of every cell of a finished grid, trained here as the local backend does with one
-    worker: all seeds of a cell stacked in one process (from the runs' own config.json)."""
+    worker: all seeds of a cell stacked in one process, on the matmul path they recorded (from the runs' own
+    config.json)."""
     from ilcsan.config import RunConfig
     from ilcsan.rl.training import load_run_config, train
 
     if workers != 1:
         raise ValueError("the in-process reference mirrors one worker (one job per cell, all seeds stacked)")
     reference: dict[str, list[str]] = {}
-    cells: dict[Path, list[int]] = {}
+    cells: dict[tuple[Path, str], list[int]] = {}
     for path in sorted(Path(out).rglob("config.json")):
-        cells.setdefault(path.parent.parent, []).append(load_run_config(path.parent).seeds[0])
-    for index, (cell, seeds) in enumerate(sorted(cells.items())):
+        cell = (path.parent.parent, matmul_path_of(path.parent))
+        cells.setdefault(cell, []).append(load_run_config(path.parent).seeds[0])
+    for index, ((cell, matmul), seeds) in enumerate(sorted(cells.items())):
         config = load_run_config(cell / f"seed{seeds[0]}")
         target = Path(out).parent / f"{Path(out).name}-reference" / str(index)
         stacked = RunConfig(task=config.task, seeds=tuple(seeds), steps=config.steps, eval_every=config.eval_every,
-                            eval_episodes=config.eval_episodes, actor=config.actor, training=config.training, threads=1)
+                            eval_episodes=config.eval_episodes, actor=config.actor, training=config.training,
+                            matmul=matmul, threads=1)
         train(stacked, target, progress=False, log=lambda *_: None)
         for seed in seeds:
             reference[str((cell / f"seed{seed}").relative_to(out))] = curve(target / f"seed{seed}")

@@ -1,16 +1,17 @@
 """kill -9 a real `ilcsan train` process at three moments (CI subset of benchmarks/faults.py).
 
 After each kill: every checkpoint on disk loads, none is older than the last evaluation the process
-reported, `--resume` succeeds, and the resumed curve equals an uninterrupted run's exactly. To stay quick,
-the uninterrupted runs and the final resume run through `ilcsan.cli.main` in this process (the killed
-run is always a real process); benchmarks/faults.py runs everything as separate processes and checks
-that the in-process curve equals a process's.
+reported, `--resume` succeeds, and the resumed curve equals exactly that of an uninterrupted run on the
+matmul path the trial measured at its start. To stay quick, the uninterrupted runs and the final resume
+run through `ilcsan.cli.main` in this process (the killed run is always a real process);
+benchmarks/faults.py runs everything as separate processes and checks that the in-process curve equals a
+process's.
 """
 
 from __future__ import annotations
 
 import pytest
-from fault_harness import After, During, RunSpec, kill_and_resume, reference_in_process
+from fault_harness import After, During, References, RunSpec, kill_and_resume
 
 SINGLE = RunSpec(steps=450, eval_every=150)
 TWO_SEEDS = RunSpec(steps=300, eval_every=150, seeds="0,1")
@@ -18,9 +19,9 @@ TWO_SEEDS = RunSpec(steps=300, eval_every=150, seeds="0,1")
 
 @pytest.fixture(scope="module")
 def references(tmp_path_factory):
+    """Uninterrupted runs made on the matmul path each trial measured at its start (usually one per spec)."""
     base = tmp_path_factory.mktemp("reference")
-    return {SINGLE: reference_in_process(SINGLE, base / "one"),
-            TWO_SEEDS: reference_in_process(TWO_SEEDS, base / "two")}
+    return {SINGLE: References(SINGLE, base / "one"), TWO_SEEDS: References(TWO_SEEDS, base / "two")}
 
 
 def assert_survived(result, kills=1):

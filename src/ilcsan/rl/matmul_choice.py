@@ -10,6 +10,7 @@ import torch
 
 from .. import methods
 from ..compute.matmul import (
+    FLOAT32_PATHS,
     MATMUL_PATHS,
     MatmulPath,
     Product,
@@ -21,6 +22,7 @@ from ..compute.matmul import (
     product_times,
 )
 from ..config import SPIKING_ENCODERS, RunConfig
+from ..errors import UserError
 from ..snn.diagnostics import DIAGNOSTIC_STATES
 from .algorithms import algorithm_class
 
@@ -83,12 +85,18 @@ def run_products(config: RunConfig, state_dim: int, action_dim: int,
 def choose_matmul_path(config: RunConfig, state_dim: int, action_dim: int,
                        episode_steps: int | None = None) -> tuple[MatmulPath, dict]:
     """The matmul path of the run's networks (:mod:`ilcsan.compute.matmul`) and what was chosen, for config.json and
-    the start-up line. float32: the faster float32 path on the run's own products, measured now. bf16: bfloat16 for
-    the products it computes faster, measured now as the run will compute them (casts fused when compiled), float32
-    (``aten``) for the others."""
+    the start-up line. float32: the faster float32 path on the run's own products, measured now. aten, onednn: that
+    path, not measured (the same in every run). bf16: bfloat16 for the products it computes faster, measured now as
+    the run will compute them (casts fused when compiled), float32 (``aten``) for the others."""
     if torch.device(config.device).type != "cpu":
         return MatmulPath("aten"), {"path": "aten", "gflops": {}}
-    products, compiled = run_products(config, state_dim, action_dim, episode_steps), config.compiles()
+    compiled = config.compiles()
+    if config.matmul in FLOAT32_PATHS:
+        if config.matmul == "onednn" and not onednn_available():
+            raise UserError("--matmul onednn: this build of torch has no oneDNN linear kernel; use --matmul aten, "
+                            "or float32 to measure")
+        return MatmulPath(config.matmul), {"path": config.matmul, "compiled": compiled, "gflops": {}, "named": True}
+    products = run_products(config, state_dim, action_dim, episode_steps)
     if config.matmul == "bf16":
         times = product_times(products, fused_casts=compiled)
         gaining = gaining_products(times)
@@ -107,11 +115,13 @@ def recorded_matmul_path(choice: Any, setting: str) -> tuple[MatmulPath, dict] |
     """The path a run chose at its start (``matmul_path`` in its config.json), to resume it on: the two float32 paths
     round differently, so a resumed run computes as its first part did only on the same path — and only then equals
     an uninterrupted run bit for bit. None when the choice is absent (a run of an older version), unreadable, not
-    available here (oneDNN in another build of torch) or not of the ``--matmul`` now asked for (``setting``: float32
-    or bf16): the path is then measured again."""
+    available here (oneDNN in another build of torch) or not of the ``--matmul`` now asked for (``setting``: float32,
+    bf16, or a float32 path named): the path is then measured again, or taken as named."""
     if not isinstance(choice, Mapping) or choice.get("path") not in MATMUL_PATHS:
         return None
     if (choice["path"] == "bf16") != (setting == "bf16"):
+        return None
+    if setting in FLOAT32_PATHS and choice["path"] != setting:
         return None
     if choice["path"] == "onednn" and not onednn_available():
         return None
@@ -132,6 +142,8 @@ def describe_matmul_choice(choice: dict) -> str:
         gain = f", {choice['bf16_speedup']:.1f}x faster on those" if chosen else ""
         return (f"matmul: bf16 on {chosen} of this run's {total} product shapes (measured{gain}), float32 (aten) "
                 f"on the {total - chosen} that bfloat16 does not speed up")
+    if choice.get("named"):
+        return f"matmul: {choice['path']} (as --matmul names it, not measured)"
     if not choice["gflops"]:
         return f"matmul: {choice['path']}"
     speeds = ", ".join(f"{name} {value:.0f}" for name, value in choice["gflops"].items())
