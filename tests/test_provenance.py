@@ -280,7 +280,8 @@ def test_precision_library_versions_and_dirty_code_are_differences_too_and_each_
 
 def test_runs_that_agree_give_no_note_and_only_a_partly_recorded_cell_says_so(tmp_path: Path) -> None:
     same = [segment(), segment(step=150_000)]  # resumed on the same machine and code: nothing to say
-    intra_cell(tmp_path / "agree", same, [segment()], [segment()])
+    named = [segment(matmul="aten")]  # --matmul aten computes as a measured aten: the same precision
+    intra_cell(tmp_path / "agree", same, [segment()], named)
     notes, markdown, _ = report_notes(tmp_path / "agree")
     assert notes == [] and "Provenance" not in markdown and "differ in" not in markdown
     intra_cell(tmp_path / "older", None, None)  # runs of a version before provenance.json: no noise either

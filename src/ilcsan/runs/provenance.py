@@ -28,6 +28,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from ..compute.matmul import FLOAT32_PATHS
 from ..version import __version__
 
 GIT_TIMEOUT_SECONDS = 5.0
@@ -149,7 +150,10 @@ def _code(segment: Mapping[str, Any]) -> str:
 
 
 def _precision(segment: Mapping[str, Any]) -> str:
+    """``--matmul`` and the path, e.g. ``float32 (aten)``: a path named (``--matmul aten``) reads as the same path
+    measured, since both compute alike."""
     matmul, path = segment.get("matmul"), segment.get("matmul_path")
+    matmul = "float32" if matmul in FLOAT32_PATHS else matmul
     text = str(matmul) if path in (None, matmul) else f"{matmul} ({path})"
     device = segment.get("device", "cpu")
     return text if device == "cpu" else f"{text} on {device}"
