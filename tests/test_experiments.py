@@ -39,7 +39,6 @@ from ilcsan.experiments.jobs import (
 from ilcsan.experiments.progress import format_duration
 from ilcsan.experiments.ray_cluster import captured_stderr, check_listening, join_failure, ray_node_address
 from ilcsan.paper.layouts import TABLES
-from ilcsan.rl.matmul_choice import recorded_matmul_path
 from ilcsan.rl.training import Trainer, train
 
 TINY_TRAINING = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
@@ -296,10 +295,9 @@ def test_grid_runs_locally_survives_an_interruption_and_reports(tmp_path, monkey
     assert metrics(partial.directory)[0] == first_row
     log = (grid.root / "logs" / "Pendulum-v1--ilc--s0.log").read_text()
     assert "resumed" in log and "at step 150" in log and "kept from the run's start" in log
-    recorded = json.loads((partial.directory / "config.json").read_text())["matmul_path"]
-    monkeypatch.setattr("ilcsan.rl.run_setup.choose_matmul_path",  # the uninterrupted run on the same path
-                        lambda *_: recorded_matmul_path(recorded, partial.config.matmul))
-    train(partial.config, tmp_path / "straight", progress=False, **QUIET)
+    from test_training import on_the_path_of
+
+    train(on_the_path_of(partial.config, partial.directory), tmp_path / "straight", progress=False, **QUIET)
     assert [row["eval_return_mean"] for row in metrics(partial.directory)] == \
         [row["eval_return_mean"] for row in metrics(tmp_path / "straight")]
 

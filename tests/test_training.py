@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from ilcsan.rl import training
 from ilcsan.rl.agent_settings import ComputeSettings, TaskSpace
 from ilcsan.rl.algorithms import TD3
 from ilcsan.rl.training import Trainer, train
+from ilcsan.runs.directory import RunDirectory
 
 TINY_TRAINING_VALUES = {"start_steps": 150, "update_after": 100, "update_every": 25, "batch_size": 16}
 TINY_TRAINING = TrainingConfig(**TINY_TRAINING_VALUES)
@@ -189,8 +189,7 @@ def on_the_path_of(config: RunConfig, directory) -> RunConfig:
     """``config`` with the matmul path the run in ``directory`` recorded (``--matmul aten`` or ``onednn``): runs of a
     seed compute alike only on one path, and each measures at its start which is faster (on a noisy machine, not
     always the same one)."""
-    recorded = json.loads((Path(directory) / "config.json").read_text())["matmul_path"]["path"]
-    return dataclasses.replace(config, matmul=recorded)
+    return dataclasses.replace(config, matmul=RunDirectory(directory).matmul_choice()["path"])
 
 
 def tiny_method_run(**training_options) -> RunConfig:

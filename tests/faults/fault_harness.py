@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import os
 import re
 import signal
@@ -209,7 +208,9 @@ def curves(spec: RunSpec, out: Path) -> dict[int, list[str]]:
 
 def matmul_path_of(directory: Path) -> str:
     """The matmul path a run computed on (``matmul_path`` in its config.json: ``aten``, ``onednn`` or ``bf16``)."""
-    return json.loads((Path(directory) / "config.json").read_text())["matmul_path"]["path"]
+    from ilcsan.runs.directory import RunDirectory
+
+    return RunDirectory(directory).matmul_choice()["path"]
 
 
 class References:

@@ -66,7 +66,7 @@ def set_up(run, resume: bool, progress: bool | None) -> None:
 def kept_matmul_path(run):
     """The matmul path the run being resumed started on (:func:`recorded_matmul_path`), if it can be kept."""
     try:
-        recorded = run.directories[0].config_object().get("matmul_path")
+        recorded = run.directories[0].matmul_choice()
     except RunFileError:
         return None
     return recorded_matmul_path(recorded, run.config.matmul)

@@ -112,6 +112,11 @@ class RunDirectory:
         """``config.json`` as a JSON object, for readers that accept other versions' files (RunFileError)."""
         return _json_object(self.file(CONFIG))
 
+    def matmul_choice(self) -> Any:
+        """``matmul_path`` of ``config.json``: the matmul path the run computes on and how it was chosen (``{"path":
+        "aten", "gflops": {...}, ...}``), as recorded — None when absent (RunFileError when the file is damaged)."""
+        return self.config_object().get("matmul_path")
+
     def result(self) -> dict[str, Any] | None:
         """``result.json`` as a JSON object, None when absent (RunFileError when damaged)."""
         return _json_object(self.file(RESULT)) if self.file(RESULT).exists() else None
