@@ -60,7 +60,8 @@ def test_identical_rows_are_even_and_cannot_be_told_apart() -> None:
     assert comparison.verdict == "cannot tell apart on these seeds"
     assert comparison.sentence().startswith("A over B: P(improvement) = 0.50, 95 % CI ")
     assert comparison.sentence().endswith("4 tasks × 3 seeds (Ant, HalfCheetah, Hopper, Walker2d; seeds 0, 1, 2): "
-                                          "cannot tell apart on these seeds")
+                                          "cannot tell apart on these seeds; per task: Ant 0.50, HalfCheetah 0.50, "
+                                          "Hopper 0.50, Walker2d 0.50")
 
 
 def test_a_row_far_above_is_better_and_the_other_way_round_worse() -> None:
@@ -71,7 +72,8 @@ def test_a_row_far_above_is_better_and_the_other_way_round_worse() -> None:
     # every pair agrees, so the interval has no width: the sentence says that this is not certainty
     assert (better.interval.low, better.interval.high) == (1.0, 1.0)
     assert better.sentence().endswith(": better (every pair of runs agreed, which leaves the bootstrap no other "
-                                      "answer; with 3 seeds per task that is not certainty)")
+                                      "answer; with 3 seeds per task that is not certainty); per task: Ant 1.00, "
+                                      "HalfCheetah 1.00, Hopper 1.00, Walker2d 1.00")
     worse = compare(IMPROVEMENT, ("low", low), ("high", high), TASKS, QUICK)
     assert worse.interval.high < 0.5 and worse.verdict == "worse" and worse.unanimous
 
@@ -92,6 +94,22 @@ def test_probability_of_improvement_is_rliables_statistic() -> None:
     assert probability_of_improvement(x, y)[0] == pytest.approx(metrics.probability_of_improvement(x, y))
     x, y = rng.normal(size=(5, 3)), rng.normal(size=(2, 3))
     assert probability_of_improvement(x, y)[0] == pytest.approx(metrics.probability_of_improvement(x, y))
+
+
+def test_a_comparison_names_the_tasks_that_decide_it() -> None:
+    """Hand-computed: on Ant the runs 1, 2, 3 against 2, 2, 2 win 3 pairs, tie 3 and lose 3 (0.5); on Hopper every
+    pair is won (1.0); the whole P(improvement) is their mean, 0.75. Each task's value is rliable's on that task."""
+    x = {"Ant": {0: 1.0, 1: 2.0, 2: 3.0}, "Hopper": {0: 10.0, 1: 11.0, 2: 12.0}}
+    y = {"Ant": {0: 2.0, 1: 2.0, 2: 2.0}, "Hopper": {0: 1.0, 1: 1.0, 2: 1.0}}
+    comparison = compare(IMPROVEMENT, ("X", x), ("Y", y), ("Ant", "Hopper"), QUICK)
+    assert comparison.per_task == (0.5, 1.0) and comparison.interval.estimate == 0.75
+    assert comparison.sentence().endswith("; per task: Ant 0.50, Hopper 1.00")
+    matrices = [np.array([[row[task][seed] for task in ("Ant", "Hopper")] for seed in range(3)]) for row in (x, y)]
+    for column, value in enumerate(comparison.per_task):
+        assert value == pytest.approx(metrics.probability_of_improvement(*(m[:, [column]] for m in matrices)))
+    apr_ = compare(APR, ("X", x), ("DAN", y), ("Ant", "Hopper"), QUICK)
+    assert apr_.per_task == pytest.approx((100.0, 1100.0)) and apr_.interval.estimate == pytest.approx(600.0)
+    assert apr_.sentence().endswith("; per task: Ant 100.0 %, Hopper 1100.0 %")
 
 
 @pytest.mark.parametrize("shape", [(3, 8), (10, 1), (2, 5), (4, 7)])
@@ -190,6 +208,9 @@ def test_the_report_says_in_words_whether_ilc_san_beats_dan(tmp_path: Path) -> N
     expected = 100 * np.mean([3510 / 3010, 5610 / 5010])
     assert float(apr["estimate"]) == pytest.approx(expected)
     assert (apr["verdict"], apr["tasks"], apr["seeds_per_task"], apr["reps"]) == ("better", "Ant;Hopper", "3", "400")
+    per_task = dict(item.split(":") for item in apr["per_task"].split(";"))
+    assert {task: float(value) for task, value in per_task.items()} == pytest.approx(
+        {"Ant": 100 * 5610 / 5010, "Hopper": 100 * 3510 / 3010})
 
 
 # ------------------------------------------------------------------------------------------------

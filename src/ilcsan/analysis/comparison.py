@@ -20,6 +20,10 @@ Edge of the Statistical Precipice* (NeurIPS 2021), ``rliable``:
 * the paper's **APR** of each spiking row on the same runs: 100 × mean over tasks of mean(row's scores) / mean(DAN's
   scores); 100 % is even.
 
+Each comparison also gives its statistic per task (:attr:`Comparison.per_task`, the values its whole averages), so
+that a reader sees which tasks decide it: P(improvement) weighs every margin alike, so a task where both rows sit at
+the task's ceiling and one is higher by a few points counts as a full win of that row.
+
 **Intervals**: percentile intervals of rliable's stratified bootstrap (``rliable.library.get_interval_estimates``):
 each task's runs are resampled with replacement within the task (a pair's two rows independently),
 :attr:`Bootstrap.reps` times. rliable draws from NumPy's global random state (not from its ``random_state``
@@ -200,18 +204,29 @@ def score_matrix(scores: Scores, selection: Selection) -> np.ndarray:
                      for run in range(selection.k)], dtype=float)
 
 
-def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``rliable.metrics.probability_of_improvement(x, y)`` as a 1-element array, by broadcasting instead of one
-    ``scipy.stats.mannwhitneyu`` per task (the same number: Σ over run pairs of [x > y] + ½ [x = y], over n_x n_y,
-    averaged over tasks; 100× faster, which a bootstrap of thousands of replicates needs)."""
+def task_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per task (column), the chance that a run of ``x`` scores above a run of ``y``: Σ over run pairs of [x > y]
+    + ½ [x = y], over n_x n_y (the Mann–Whitney U statistic over n_x n_y), by broadcasting."""
     above = (x[:, None, :] > y[None, :, :]).sum(axis=(0, 1))
     ties = (x[:, None, :] == y[None, :, :]).sum(axis=(0, 1))
-    return np.array([np.mean((above + 0.5 * ties) / (x.shape[0] * y.shape[0]))])
+    return (above + 0.5 * ties) / (x.shape[0] * y.shape[0])
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``rliable.metrics.probability_of_improvement(x, y)`` as a 1-element array: :func:`task_improvement` averaged
+    over tasks (the same number as one ``scipy.stats.mannwhitneyu`` per task, 100× faster, which a bootstrap of
+    thousands of replicates needs)."""
+    return np.array([np.mean(task_improvement(x, y))])
+
+
+def task_apr(x: np.ndarray, dan: np.ndarray) -> np.ndarray:
+    """Per task (column), 100 × mean(x) / mean(DAN): the ratios the APR averages."""
+    return 100.0 * x.mean(axis=0) / dan.mean(axis=0)
 
 
 def apr(x: np.ndarray, dan: np.ndarray) -> np.ndarray:
     """The paper's APR in percent (Section V-A): 100 × mean over tasks of mean(x) / mean(DAN), as a 1-element array."""
-    return np.array([100.0 * np.mean(x.mean(axis=0) / dan.mean(axis=0))])
+    return np.array([np.mean(task_apr(x, dan))])
 
 
 def iqm_and_mean(scores: np.ndarray) -> np.ndarray:
@@ -276,6 +291,9 @@ class Comparison:
     against: str
     selection: Selection
     interval: Interval | None = None
+    per_task: tuple[float, ...] = ()
+    """The statistic on each of :attr:`selection`'s tasks, in its order, on the selected runs (no bootstrap): a pair's
+    P(improvement) per task, or mean(row) / mean(DAN) in percent; the whole statistic is their mean."""
 
     @property
     def verdict(self) -> str | None:
@@ -293,7 +311,13 @@ class Comparison:
             return f"{head}: not computed: {self.selection.too_few}"
         caveat = (f" (every pair of runs agreed, which leaves the bootstrap no other answer; with "
                   f"{_count(self.selection.k, 'seed')} per task that is not certainty)" if self.unanimous else "")
-        return f"{head} = {self.interval.text(places, unit)} on {self.selection.text}: {self.verdict}{caveat}"
+        return (f"{head} = {self.interval.text(places, unit)} on {self.selection.text}: {self.verdict}{caveat}; "
+                f"per task: {self.per_task_text(places, unit)}")
+
+    def per_task_text(self, places: int, unit: str = "") -> str:
+        """``Ant 0.78, Hopper 0.67`` (with ``unit`` after each value): :attr:`per_task` beside its tasks."""
+        return ", ".join(f"{task} {value:.{places}f}{unit}"
+                         for task, value in zip(self.selection.tasks, self.per_task, strict=True))
 
     @property
     def unanimous(self) -> bool:
@@ -380,9 +404,10 @@ def compare(statistic: str, row: tuple[str, Scores], other: tuple[str, Scores], 
     if not selection.k:
         return Comparison(statistic, row[0], other[0], selection)
     pair = (score_matrix(row[1], selection), score_matrix(other[1], selection))
-    function = probability_of_improvement if statistic == IMPROVEMENT else apr
+    function, per_task = ((probability_of_improvement, task_improvement) if statistic == IMPROVEMENT
+                          else (apr, task_apr))
     (interval,) = bootstrap_intervals(pair, function, bootstrap)
-    return Comparison(statistic, row[0], other[0], selection, interval)
+    return Comparison(statistic, row[0], other[0], selection, interval, tuple(map(float, per_task(*pair))))
 
 
 def compare_table(result: TableResult, bootstrap: Bootstrap = DEFAULT_BOOTSTRAP) -> TableComparison:

@@ -150,8 +150,10 @@ def _md_comparison(comparison: TableComparison) -> list[str]:
             "each mean taken as exact: the interval holds the row's seed noise, not DAN's. Per "
             "pair: P(improvement), the chance that a run of one row scores above a run of the other on the same task, "
             "averaged over tasks (0.5: even), and the APR on the same runs (100 %: even); *better*/*worse*: the "
-            "interval lies entirely above/below even. Runs are paired by seed: each task offers the seeds both rows "
-            "ran; every task with ≥ 2 of them is kept, each giving its first k, k the fewest among those tasks.", "",
+            "interval lies entirely above/below even; then each task's value, which the whole averages (every "
+            "margin counts alike in P(improvement): a task where both rows sit at its ceiling can give 0 or 1). Runs "
+            "are paired by seed: each task offers the seeds both rows ran; every task with ≥ 2 of them is kept, "
+            "each giving its first k, k the fewest among those tasks.", "",
             *(f"- {sentence}" for sentence in sentences), ""]
 
 
@@ -411,11 +413,12 @@ def render_csv(results: TableResult | Sequence[TableResult]) -> str:
 
 COMPARISON_COLUMNS: tuple[str, ...] = (
     "table", "statistic", "row", "against", "estimate", "ci_low", "ci_high", "confidence", "verdict", "tasks",
-    "seeds_per_task", "seeds", "left_out", "note", "reps", "bootstrap_seed",
+    "seeds_per_task", "seeds", "left_out", "note", "per_task", "reps", "bootstrap_seed",
 )
 """``comparison.csv``: one line per statistic of :mod:`.comparison` (``statistic`` iqm, mean,
 probability_of_improvement, apr or note; ``against`` the other row or the normaliser; ``seeds`` per task, e.g.
-``Ant:0 1 2;Hopper:0 1 2``; ``note`` why a statistic was not computed, or a note on the whole table)."""
+``Ant:0 1 2;Hopper:0 1 2``; ``note`` why a statistic was not computed, or a note on the whole table; ``per_task`` a
+comparison's statistic on each task, e.g. ``Ant:0.7777777777777778;Hopper:0.6666666666666666``)."""
 
 
 def render_comparison_csv(comparisons: Sequence[TableComparison]) -> str:
@@ -428,13 +431,15 @@ def render_comparison_csv(comparisons: Sequence[TableComparison]) -> str:
         for item in comparison.aggregates:
             for statistic, interval in (("iqm", item.iqm), ("mean", item.mean)):
                 writer.writerow([comparison.table, statistic, item.row, item.normaliser,
-                                 *_csv_interval(interval, None), *_csv_selection(item), *settings])
+                                 *_csv_interval(interval, None), *_csv_selection(item), "", *settings])
         for item in comparison.comparisons:
+            per_task = ";".join(f"{task}:{_csv_number(value)}" for task, value in
+                                zip(item.selection.tasks, item.per_task, strict=True)) if item.per_task else ""
             writer.writerow([comparison.table, item.statistic, item.row, item.against,
-                             *_csv_interval(item.interval, item.verdict), *_csv_selection(item), *settings])
+                             *_csv_interval(item.interval, item.verdict), *_csv_selection(item), per_task, *settings])
         for note in comparison.notes:
             blank = [""] * (COMPARISON_COLUMNS.index("note") - 2)  # no row, interval or selection
-            writer.writerow([comparison.table, "note", *blank, note, *settings])
+            writer.writerow([comparison.table, "note", *blank, note, "", *settings])
     return buffer.getvalue()
 
 
