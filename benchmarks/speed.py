@@ -29,7 +29,6 @@ import os
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -39,7 +38,7 @@ import torch
 from ilcsan.compute.process import flush_denormals
 from ilcsan.config import RunConfig, TrainingConfig, actor_config
 from ilcsan.experiments.estimate import cpu_field
-from ilcsan.rl.training import Trainer
+from ilcsan.experiments.machine_speed import seconds_per_training_step
 
 TASK_SIZES = {"Hopper": (11, 3), "Ant": (111, 8), "HalfCheetah": (17, 6)}
 
@@ -179,23 +178,6 @@ def training_speed(task: str, preset: str, engine: str, seeds: tuple[int, ...], 
                        actor=actor_config(preset, normalization=normalization), training=training, engine=engine,
                        threads=threads, compile=compile_mode, matmul=matmul, algorithm=algorithm)
     return 1.0 / seconds_per_training_step(config, warmup, steps)[0]
-
-
-def seconds_per_training_step(config: RunConfig, warmup: int, steps: int, then=None):
-    """Seconds per training step of ``config`` (a fresh run in a temporary folder) over ``steps`` steps after
-    ``warmup`` untimed ones, and what ``then(trainer)`` returns after them (None without it)."""
-    with tempfile.TemporaryDirectory() as folder:
-        trainer = Trainer(config, Path(folder) / "run", progress=False, log=lambda *_: None)
-        try:
-            for _ in range(warmup):
-                trainer.train_step()
-            start = time.perf_counter()
-            for _ in range(steps):
-                trainer.train_step()
-            elapsed = time.perf_counter() - start
-            return elapsed / steps, then(trainer) if then is not None else None
-        finally:
-            trainer.close()
 
 
 def sb3_speed(task: str, threads: int, steps: int, warmup: int, flush: bool = False) -> float | None:

@@ -30,75 +30,43 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-import numpy as np
 import torch
-from speed import cpu_model, seconds_per_training_step
+from speed import cpu_model
 
-from ilcsan.config import RunConfig, TrainingConfig, actor_config
+from ilcsan.experiments.machine_speed import (
+    PROTOCOL,
+    evaluation_seconds,
+    protocol_config,
+    protocol_speed,
+    seconds_per_training_step,
+)
 from ilcsan.paper.layouts import TABLES
-from ilcsan.rl.evaluation import replay_diagnostics
 from ilcsan.rl.training import Trainer
 
 PRECISIONS = ("float32", "bf16")
-EVAL_EVERY = 10_000
-EVAL_EPISODES = 10
+EVAL_EVERY = PROTOCOL.eval_every
 
 
 def measure(actor: str, task: str, matmul: str, steps: int, warmup: int) -> dict[str, float | str]:
     """One actor preset, task and precision: seconds per training step, per evaluation, and the matmul choice."""
     torch.set_num_threads(1)
-    training = TrainingConfig(start_steps=0, update_after=100)
-    config = RunConfig(task=task, seeds=(0,), steps=warmup + steps + 1, eval_every=EVAL_EVERY,
-                       eval_episodes=EVAL_EPISODES, actor=actor_config(actor), training=training, threads=1,
-                       compile="on", matmul=matmul)
+    config = protocol_config(actor, task, matmul, steps=steps, warmup=warmup)
     train, (evaluation, limit, chosen) = seconds_per_training_step(config, warmup, steps, evaluation_and_path)
     return {"actor": actor, "task": task, "matmul": matmul, "train": train, "evaluation": evaluation,
             "limit": limit, "path": chosen}
 
 
 def evaluation_and_path(trainer: Trainer) -> tuple[float, int, str]:
-    """:func:`evaluation_seconds` and the matmul path the run chose, in words."""
+    """:func:`~ilcsan.experiments.machine_speed.evaluation_seconds` and the matmul path the run chose, in words."""
     chosen = trainer.matmul_choice["path"]
     if chosen == "bf16":
         chosen = f"bf16 on {len(trainer.matmul_choice['bf16_products'])} of {trainer.matmul_choice['products']} shapes"
     return (*evaluation_seconds(trainer), chosen)
 
 
-def evaluation_seconds(trainer: Trainer, lockstep_steps: int = 100, warmup: int = 20) -> tuple[float, int]:
-    """Seconds of one evaluation with every episode at the task's time limit, and that limit: the time of
-    ``lockstep_steps`` lockstep steps (one batched action, then each episode's environment step; an ended episode
-    restarts so that every step steps all of them), scaled to the limit, plus one pass of the actor diagnostics;
-    each after ``warmup`` untimed calls (the acting pass compiles for the evaluation's shape on its first)."""
-    envs = trainer.eval_envs[0]
-    limit = envs[0].spec.max_episode_steps
-    observations = np.stack([env.reset(seed=index)[0] for index, env in enumerate(envs)])[None]
-
-    def lockstep() -> None:
-        actions = trainer._act(observations)
-        for index, env in enumerate(envs):
-            observation, _, terminated, truncated, _ = env.step(actions[0, index])
-            observations[0, index] = env.reset()[0] if terminated or truncated else observation
-
-    def diagnostics() -> None:
-        replay_diagnostics(trainer.agent, trainer.replay, trainer.normalizer, trainer.config.seeds, trainer.step)
-
-    per_step = seconds_per_call(lockstep, lockstep_steps, warmup)
-    return limit * per_step + seconds_per_call(diagnostics, 3, 1), limit
-
-
-def seconds_per_call(function, calls: int, warmup: int) -> float:
-    """Mean seconds of ``calls`` calls of ``function`` after ``warmup`` untimed ones."""
-    for _ in range(warmup):
-        function()
-    start = time.perf_counter()
-    for _ in range(calls):
-        function()
-    return (time.perf_counter() - start) / calls
-
-
-def protocol_speed(row: dict) -> float:
+def row_speed(row: dict) -> float:
     """Steps/s of the protocol after the random phase, evaluations included."""
-    return EVAL_EVERY / (EVAL_EVERY * row["train"] + row["evaluation"])
+    return protocol_speed(row["train"], row["evaluation"], EVAL_EVERY)
 
 
 def main() -> None:
@@ -125,11 +93,11 @@ def main() -> None:
              "× ILC-SAN's Hopper | bf16 × float32 |", "|---|---|---|---|---|---|---|---|---|"]
     for actor, task, matmul in jobs:
         row = rows[(actor, task, matmul)]
-        speed = protocol_speed(row)
+        speed = row_speed(row)
         hopper = rows.get(("ilc-san", "Hopper", matmul))
-        relative = f"{protocol_speed(hopper) / speed:.2f}" if hopper else "–"
+        relative = f"{row_speed(hopper) / speed:.2f}" if hopper else "–"
         float32 = rows.get((actor, task, "float32"))
-        gain = f"{speed / protocol_speed(float32):.2f}" if matmul == "bf16" and float32 else "–"
+        gain = f"{speed / row_speed(float32):.2f}" if matmul == "bf16" and float32 else "–"
         lines.append(f"| {actor} | {task} | {matmul} ({row['path']}) | {1 / row['train']:.0f} | "
                      f"{row['evaluation']:.1f} (limit {row['limit']}) | {speed:.0f} | {1e6 / speed / 3600:.2f} | "
                      f"{relative} | {gain} |")

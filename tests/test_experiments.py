@@ -6,6 +6,7 @@ import contextlib
 import csv
 import dataclasses
 import json
+import math
 import os
 import platform
 import signal
@@ -473,7 +474,8 @@ def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
         assert fragment in lines[0]
 
 
-def test_list_shows_every_table_its_rows_protocol_runs_and_estimate(capsys):
+def test_list_shows_every_table_its_rows_protocol_runs_and_estimate(capsys, monkeypatch):
+    monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "200")
     code, out, _ = run_cli(capsys, "reproduce", "--list")
     assert code == 0
     for spec in TABLES.values():
@@ -511,22 +513,89 @@ def test_list_of_a_grid_file_uses_a_measured_speed(tmp_path, capsys, monkeypatch
     assert list_tables([TABLES["layer"]], 100.0, 2).count("estimate:") == 1
 
 
-def test_estimates_assume_the_setting_not_the_cpu(monkeypatch):
+def test_estimates_scale_the_setting_when_it_is_given(monkeypatch):
     from ilcsan.experiments import estimate
 
-    monkeypatch.delenv("ILCSAN_STEPS_PER_SECOND", raising=False)
-    assert estimate.steps_per_second_default() == estimate.DEFAULT_STEPS_PER_SECOND
-    assert not any(name.startswith("MEASURED") or name == "cpu_vendor" for name in vars(estimate))
+    monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "150")
+    assert estimate.base_speed() == (150.0, "the setting ILCSAN_STEPS_PER_SECOND")
+    assert not any(name.startswith("MEASURED") or name.startswith("DEFAULT") or name == "cpu_vendor"
+                   for name in vars(estimate)), "no machine's speed is written in the code"
     footer = list_tables([TABLES["layer"]], cores=2).split("\n\n")[-1]
-    assert f"assume {estimate.DEFAULT_STEPS_PER_SECOND:g} steps/s" in footer
-    assert f"ILCSAN_STEPS_PER_SECOND, default {estimate.DEFAULT_STEPS_PER_SECOND:g}" in footer
+    assert "assume 150 steps/s per run on one core" in footer and "the setting ILCSAN_STEPS_PER_SECOND" in footer
     from ilcsan.methods import noisysan, proxy_target
 
     assert (f"training: Proxy Target 1 + {proxy_target.COST_PER_ITERATION:g}·K, "
             f"NoisySAN {noisysan.NoisySANDeclaration.step_cost:g}") in footer
     monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "fast")
     with pytest.raises(UserError, match="ILCSAN_STEPS_PER_SECOND='fast' must be a positive number"):
-        estimate.steps_per_second_default()
+        estimate.base_speed()
+
+
+def test_without_the_setting_this_machines_speed_is_measured_once_and_kept(tmp_path, monkeypatch):
+    from ilcsan.experiments import machine_speed
+
+    monkeypatch.delenv("ILCSAN_STEPS_PER_SECOND", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    measured, said = [], []
+
+    def measure() -> float:
+        measured.append(True)
+        return 173.4
+
+    first = machine_speed.this_machine_speed(said.append, measure)
+    assert first.steps_per_second == 173.4 and len(measured) == 1 and len(said) == 1
+    assert "measuring this machine's speed" in said[0] and str(machine_speed.cache_path()) in said[0]
+    assert machine_speed.cache_path() == tmp_path / "cache" / "ilcsan" / "machine_speed.json"
+    again = machine_speed.this_machine_speed(said.append, measure)
+    assert again == first and len(measured) == 1 and len(said) == 1, "kept: not measured twice"
+    # another machine or software version: measured anew, and the first entry is kept beside it
+    monkeypatch.setattr(machine_speed, "machine_key", lambda: "another CPU, 64 cores, torch 9, ilcsan 9")
+    assert machine_speed.this_machine_speed(said.append, lambda: 90.0).steps_per_second == 90.0
+    assert len(json.loads(machine_speed.cache_path().read_text())) == 2
+    # an unreadable file is measured over, not an error
+    machine_speed.cache_path().write_text("{not json")
+    assert machine_speed.this_machine_speed(said.append, lambda: 95.0).steps_per_second == 95.0
+
+
+def test_list_says_the_speed_it_measured_and_where_it_is_kept(tmp_path, capsys, monkeypatch):
+    from ilcsan.experiments import machine_speed
+
+    monkeypatch.delenv("ILCSAN_STEPS_PER_SECOND", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    key = machine_speed.machine_key()
+    machine_speed.keep_speed(machine_speed.MachineSpeed(212.6, "2026-12-06T10:00:00Z", key))
+    code, out, err = run_cli(capsys, "reproduce", "layer", "--list", "--workers", "2")
+    assert code == 0 and "measuring" not in err
+    assert "assume 213 steps/s per run on one core" in out
+    assert f"measured on this machine on 2026-12-06 (kept in {machine_speed.cache_path()}" in out
+    hours = estimate_hours(TABLES["layer"], 212.6, 2)
+    assert hours >= 48 and f"estimate: ≈ {hours:,.0f} h ({hours / 24:,.1f} days) on this machine" in out
+
+
+def test_the_protocol_speed_of_a_real_run_is_measured():
+    """The formula on a hand-computed case (4 ms a step, 10 s an evaluation every 10 000 steps: 10 000 / 50 s), then
+    a real, short, uncompiled measurement of ILC-SAN on Hopper: a finite positive speed, below the speed of its
+    training steps alone (an evaluation costs time)."""
+    from ilcsan.experiments import machine_speed
+
+    assert machine_speed.protocol_speed(0.004, 10.0, 10_000) == pytest.approx(200.0)
+    config = machine_speed.protocol_config("ilc-san", "Hopper", steps=20, warmup=5, compile="off")
+    cpu = time.process_time
+    train, (evaluation, limit) = machine_speed.seconds_per_training_step(
+        config, 5, 20, lambda trainer: machine_speed.evaluation_seconds(trainer, clock=cpu), clock=cpu)
+    assert limit == 1000 and 0 < train < 1 and evaluation > 0
+    speed = machine_speed.protocol_speed(train, evaluation)
+    assert math.isfinite(speed) and 0 < speed < 1 / train
+
+
+def test_the_measurement_counts_cpu_time_so_waiting_for_a_busy_core_does_not_lower_it():
+    from ilcsan.experiments.machine_speed import seconds_per_call
+
+    def wait() -> None:
+        time.sleep(0.05)  # as a process that waits for the core another holds
+
+    assert seconds_per_call(wait, 2, 0, time.perf_counter) >= 0.05
+    assert seconds_per_call(wait, 2, 0, time.process_time) < 0.01
 
 
 def test_cpu_fields_are_read_as_proc_cpuinfo_writes_them(tmp_path):

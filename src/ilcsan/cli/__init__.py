@@ -87,7 +87,10 @@ def _add_reproduce_command(subparsers) -> None:
     reproduce = subparsers.add_parser("reproduce", help="run a table of the paper as a grid of runs",
                                     description="Run the grid of a paper table (or your own TOML grid).")
     reproduce.add_argument("table", nargs="?", help=" | ".join([*TABLES, "path/to/grid.toml"]))
-    reproduce.add_argument("--list", action="store_true", help="list the tables and their grids")
+    reproduce.add_argument("--list", action="store_true",
+                           help="list the tables and their grids, with run counts and hours estimated from this "
+                                "machine's speed (measured once, about a minute, and kept; ILCSAN_STEPS_PER_SECOND "
+                                "sets it instead)")
     reproduce.add_argument("--seeds", default=None, help=f"seeds (default: the grid's; paper: 0-{SEEDS - 1})")
     add_setting(reproduce, RunConfig, "steps", default=None, default_text=_GRIDS)
     reproduce.add_argument("--tasks", default=None, help="comma-separated tasks: the table's, or any other "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from .. import methods
 from ..config import actor_config, training_config_class
@@ -12,11 +12,8 @@ from ..errors import UserError
 from ..paper.layouts import TABLES, RowSpec, TableSpec
 
 STEPS_PER_SECOND_ENV = "ILCSAN_STEPS_PER_SECOND"
-DEFAULT_STEPS_PER_SECOND = 130.0
-"""The speed :func:`estimate_hours` and ``reproduce --list`` assume when ``ILCSAN_STEPS_PER_SECOND`` is not set:
-environment steps per second of one ILC-SAN run on Hopper with one torch thread on one core, evaluations included. A
-setting, not a property of the machine at hand: set the variable to the steps/s that ``ilcsan train --task Hopper
---threads 1`` prints at its evaluations here."""
+"""Set it to the steps/s of one ILC-SAN run on Hopper with one torch thread, evaluations included, to use that figure
+for the estimates instead of this machine's measured one (:mod:`ilcsan.experiments.machine_speed`)."""
 
 ACTOR_STEP_COST: dict[str, dict[str, float]] = {
     "ilc-san": {"Hopper": 1.0, "HalfCheetah": 1.1, "Walker2d": 1.2, "InvertedDoublePendulum": 1.1,
@@ -52,11 +49,12 @@ def cpu_field(name: str, path: str = "/proc/cpuinfo") -> str | None:
     return None
 
 
-def steps_per_second_default() -> float:
-    """The steps/s figure for estimates: ``ILCSAN_STEPS_PER_SECOND`` if set, else :data:`DEFAULT_STEPS_PER_SECOND`."""
+def set_steps_per_second() -> float | None:
+    """``ILCSAN_STEPS_PER_SECOND`` as a number (None when not set); a :class:`UserError` when it is not a positive
+    number."""
     text = os.environ.get(STEPS_PER_SECOND_ENV)
     if not text:
-        return DEFAULT_STEPS_PER_SECOND
+        return None
     try:
         value = float(text)
     except ValueError:
@@ -64,6 +62,20 @@ def steps_per_second_default() -> float:
     if not (math.isfinite(value) and value > 0):
         raise UserError(f"{STEPS_PER_SECOND_ENV}={text!r} must be a positive number of steps per second")
     return value
+
+
+def base_speed(log: Callable[[str], None] | None = None) -> tuple[float, str]:
+    """The steps/s of one ILC-SAN seed on Hopper that the estimates scale, and where it comes from, in words:
+    ``ILCSAN_STEPS_PER_SECOND`` if set, else this machine's measured speed
+    (:func:`~ilcsan.experiments.machine_speed.this_machine_speed`, measured once and kept)."""
+    value = set_steps_per_second()
+    if value is not None:
+        return value, f"the setting {STEPS_PER_SECOND_ENV}"
+    from .machine_speed import cache_path, this_machine_speed, to_stderr
+
+    speed = this_machine_speed(log or to_stderr)
+    return speed.steps_per_second, (f"measured on this machine on {speed.measured[:10]} (kept in {cache_path()}: "
+                                    f"delete it to measure again, or set {STEPS_PER_SECOND_ENV})")
 
 
 def method_step_cost(row: RowSpec) -> float:
@@ -161,14 +173,14 @@ def _method_costs() -> str:
 
 
 def list_tables(specs: Iterable[TableSpec] | None = None, steps_per_second: float | None = None,
-                cores: int | None = None) -> str:
-    """The text of ``ilcsan reproduce --list``."""
-    speed = steps_per_second_default() if steps_per_second is None else steps_per_second
+                cores: int | None = None, log: Callable[[str], None] | None = None) -> str:
+    """The text of ``ilcsan reproduce --list``; ``steps_per_second`` the base speed (:func:`base_speed`'s when
+    None, which ``log`` (standard error when None) tells about when it measures)."""
+    speed, source = base_speed(log) if steps_per_second is None else (steps_per_second, "as given")
     cores = cores or os.cpu_count() or 1
     blocks = [describe_table(spec, speed, cores) for spec in (specs or TABLES.values())]
-    footer = (f"Estimates assume {speed:g} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
-              f"evaluations included; the setting {STEPS_PER_SECOND_ENV}, default {DEFAULT_STEPS_PER_SECOND:g}: set it "
-              "to the steps/s `ilcsan train --task Hopper --threads 1` shows on this machine) and one run per core; "
+    footer = (f"Estimates assume {speed:.0f} steps/s per run on one core (ILC-SAN on Hopper, one torch thread, "
+              f"evaluations included; {source}) and one run per core; "
               "a run's hours = steps × its actor's cost on its task × its training's cost / (steps/s) / 3600 (each "
               "actor preset's time per step on each task relative to ILC-SAN's on Hopper, float32, as "
               f"benchmarks/task_cost.py measured them; training: {_method_costs()}; the algorithm's and methods' "
