@@ -536,6 +536,7 @@ def test_without_the_setting_this_machines_speed_is_measured_once_and_kept(tmp_p
 
     monkeypatch.delenv("ILCSAN_STEPS_PER_SECOND", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(machine_speed.os, "getloadavg", lambda: (0.1, 0.1, 0.1))  # an idle machine
     measured, said = [], []
 
     def measure() -> float:
@@ -555,6 +556,13 @@ def test_without_the_setting_this_machines_speed_is_measured_once_and_kept(tmp_p
     # an unreadable file is measured over, not an error
     machine_speed.cache_path().write_text("{not json")
     assert machine_speed.this_machine_speed(said.append, lambda: 95.0).steps_per_second == 95.0
+    # measured while other work runs: said, with how to measure again
+    machine_speed.cache_path().unlink()
+    monkeypatch.setattr(machine_speed.os, "getloadavg", lambda: (1.7, 1.2, 1.0))
+    said.clear()
+    machine_speed.this_machine_speed(said.append, lambda: 60.0)
+    assert len(said) == 2 and said[1].startswith("this machine is busy (load 1.7 on ")
+    assert f"delete {machine_speed.cache_path()} to measure again when it is idle" in said[1]
 
 
 def test_list_says_the_speed_it_measured_and_where_it_is_kept(tmp_path, capsys, monkeypatch):

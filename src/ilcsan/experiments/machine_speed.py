@@ -11,9 +11,10 @@ the task's time limit:
     protocol steps/s = E / (E × s_train + s_evaluation),   E = the steps between evaluations.
 
 The random-action phase (cheaper) and episodes an untrained actor ends early are left out, so a real run is
-somewhat faster; the time is the process's CPU time, what one free core takes (on a machine busy with other work the
-measurement takes longer, but its figure does not fall with the load), and with every core busy runs go somewhat
-slower (memory and caches are shared). The figure is kept in
+somewhat faster; one run alone is measured, and with every core busy runs go somewhat slower (they share caches and
+memory). The time is the process's CPU time, so that time spent waiting for a core another process holds does not
+count; sharing the cores' caches still does, so a machine busy with other work measures lower (and the listing says
+when the machine is busy): measure on an idle machine. The figure is kept in
 a small JSON file (:func:`cache_path`) under a key naming the CPU, its cores and the versions of torch and ilcsan,
 so that it is measured once per machine and software, not at every listing.
 """
@@ -124,9 +125,8 @@ def protocol_config(preset: str, task: str, matmul: str = "float32", steps: int 
 
 def measure_protocol_speed(preset: str = BASE_PRESET, task: str = BASE_TASK, steps: int = MEASURED_STEPS,
                            warmup: int = WARMUP_STEPS, compile: str = "on") -> float:
-    """Protocol steps/s of one seed of ``preset`` on ``task`` on a free core of this machine, one torch thread (the
-    module docstring), timed in this process's CPU time: other work on the machine lengthens the measurement, not
-    its result."""
+    """Protocol steps/s of one seed of ``preset`` on ``task`` on this machine, one torch thread (the module
+    docstring), timed in this process's CPU time: waiting for a core that other work holds does not count."""
     import torch
 
     threads = torch.get_num_threads()
@@ -189,6 +189,16 @@ def keep_speed(speed: MachineSpeed, path: Path | None = None) -> None:
     atomic_write_text(path, json.dumps(entries, indent=2, sort_keys=True) + "\n")
 
 
+def busy_cores(threshold: float = 0.5) -> float | None:
+    """The one-minute load average when it reaches ``threshold`` of a core (other work running), else None (also
+    where the system does not report it)."""
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return None
+    return load if load >= threshold else None
+
+
 def to_stderr(line: str) -> None:
     """Progress for a command whose standard output is its result."""
     print(line, file=sys.stderr, flush=True)
@@ -204,6 +214,10 @@ def this_machine_speed(log: Callable[[str], None] = to_stderr,
         return kept
     log(f"measuring this machine's speed for the estimates: one {BASE_PRESET} seed on {BASE_TASK} at the protocol, "
         f"one thread (once per machine and software, about a minute on a free core; kept in {cache_path()})")
+    busy = busy_cores()
+    if busy is not None:
+        log(f"this machine is busy (load {busy:.1f} on {os.cpu_count()} cores): the figure will be low; delete "
+            f"{cache_path()} to measure again when it is idle, or set ILCSAN_STEPS_PER_SECOND")
     speed = MachineSpeed(measure(), time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), key)
     keep_speed(speed)
     return speed
