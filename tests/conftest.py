@@ -12,6 +12,13 @@ torch.set_num_threads(1)
 
 
 @pytest.fixture(autouse=True)
+def _no_machine_measurement(monkeypatch):
+    """A listing's estimates from a set speed, not from measuring this machine (a minute, and a real training run
+    inside a test that may have stubbed the agent); the tests of the measurement unset it."""
+    monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "200")
+
+
+@pytest.fixture(autouse=True)
 def _deterministic_torch():
     torch.manual_seed(0)
     yield

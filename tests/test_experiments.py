@@ -474,8 +474,7 @@ def assert_one_line_error(code: int, err: str, *fragments: str) -> None:
         assert fragment in lines[0]
 
 
-def test_list_shows_every_table_its_rows_protocol_runs_and_estimate(capsys, monkeypatch):
-    monkeypatch.setenv("ILCSAN_STEPS_PER_SECOND", "200")
+def test_list_shows_every_table_its_rows_protocol_runs_and_estimate(capsys):
     code, out, _ = run_cli(capsys, "reproduce", "--list")
     assert code == 0
     for spec in TABLES.values():
