@@ -34,7 +34,6 @@ import torch
 from speed import cpu_model
 
 from ilcsan.experiments.machine_speed import (
-    PROTOCOL,
     evaluation_seconds,
     protocol_config,
     protocol_speed,
@@ -44,7 +43,6 @@ from ilcsan.paper.layouts import TABLES
 from ilcsan.rl.training import Trainer
 
 PRECISIONS = ("float32", "bf16")
-EVAL_EVERY = PROTOCOL.eval_every
 
 
 def measure(actor: str, task: str, matmul: str, steps: int, warmup: int) -> dict[str, float | str]:
@@ -66,7 +64,7 @@ def evaluation_and_path(trainer: Trainer) -> tuple[float, int, str]:
 
 def row_speed(row: dict) -> float:
     """Steps/s of the protocol after the random phase, evaluations included."""
-    return protocol_speed(row["train"], row["evaluation"], EVAL_EVERY)
+    return protocol_speed(row["train"], row["evaluation"])
 
 
 def main() -> None:

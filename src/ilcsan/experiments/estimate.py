@@ -71,9 +71,9 @@ def base_speed(log: Callable[[str], None] | None = None) -> tuple[float, str]:
     value = set_steps_per_second()
     if value is not None:
         return value, f"the setting {STEPS_PER_SECOND_ENV}"
-    from .machine_speed import cache_path, this_machine_speed, to_stderr
+    from .machine_speed import cache_path, this_machine_speed
 
-    speed = this_machine_speed(log or to_stderr)
+    speed = this_machine_speed(log)
     return speed.steps_per_second, (f"measured on this machine on {speed.measured[:10]} (kept in {cache_path()}: "
                                     f"delete it to measure again, or set {STEPS_PER_SECOND_ENV})")
 

@@ -204,10 +204,11 @@ def to_stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def this_machine_speed(log: Callable[[str], None] = to_stderr,
+def this_machine_speed(log: Callable[[str], None] | None = None,
                        measure: Callable[[], float] = measure_protocol_speed) -> MachineSpeed:
-    """The kept speed of this machine and software, else ``measure()``'s, kept for next time (``log`` says that it
-    measures, as it takes about a minute)."""
+    """The kept speed of this machine and software, else ``measure()``'s, kept for next time (``log``, standard
+    error when None, says that it measures, as it takes about a minute)."""
+    log = log or to_stderr
     key = machine_key()
     kept = cached_speed(key)
     if kept is not None:
